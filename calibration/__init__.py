@@ -1,0 +1,1 @@
+"""Light calibration: chrome-sphere light directions, positions and intensities."""

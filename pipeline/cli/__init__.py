@@ -1,0 +1,57 @@
+"""The ``psrig`` command line.
+
+Each sub-command lives in its own module of this package and exposes ``register(subparsers)``,
+which adds its parser and sets ``func`` (called with the parsed arguments, returning an exit
+code or None). :data:`COMMANDS` lists them in the order ``psrig --help`` shows them.
+"""
+
+import argparse
+import importlib
+import sys
+
+from .. import __version__
+from ..errors import PsrigError
+
+__all__ = ["main", "COMMANDS"]
+
+COMMANDS = (
+    "rigs", "capture", "importers", "decode", "calibrate", "normals", "integrate",
+    "run", "eval", "report", "demo", "experiments", "reflectometry",
+)
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(prog="psrig", description="Photometric stereo on a lab rig.")
+    parser.add_argument("--version", action="version", version=f"psrig {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise
+            continue
+        module.register(sub)
+    return parser
+
+
+def main(argv=None):
+    """Entry point of the ``psrig`` console script. Returns the process exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        code = args.func(args)
+    except PsrigError as exc:
+        print(f"psrig {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"psrig {args.command}: interrupted", file=sys.stderr)
+        return 130
+    return int(code or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Acquisition: light controllers, cameras, rig configuration and capture into sessions."""

@@ -1,0 +1,1 @@
+"""Simulated devices that the real drivers talk to: light firmware, PTP camera, scene."""
