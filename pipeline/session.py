@@ -222,6 +222,34 @@ class Session:
             self.save()
         return frame
 
+    def adopt_frame(self, kind, rel, *, light=None, frame_id=None, save=True, **extra):
+        """Record a raw file that is already in ``raw/`` but missing from the manifest.
+
+        This happens when a capture was killed between the atomic write of the frame and the
+        manifest update: the file is complete (it was renamed into place) and must be neither
+        lost nor captured twice. The caller checks the file parses before adopting it.
+        """
+        if kind not in FRAME_KINDS:
+            raise SessionError(f"unknown frame kind {kind!r}; expected one of {', '.join(FRAME_KINDS)}")
+        rel = check_relative(rel, "adopt_frame")
+        if not rel.startswith("raw/"):
+            raise SessionError(f"{rel}: only files in raw/ can be adopted as frames")
+        path = self.path(rel)
+        if not path.is_file():
+            raise SessionError(f"{path}: no such raw file to adopt")
+        if any(f["file"] == rel for f in self.manifest["frames"]):
+            raise SessionError(f"{path}: already recorded in the manifest")
+        frame_id = frame_id or self._next_id(kind, light)
+        if self.has_frame(frame_id):
+            raise SessionError(f"{self.root}: frame {frame_id!r} is already in the manifest")
+        frame = {"id": frame_id, "kind": kind, "light": None if light is None else int(light),
+                 "file": rel, "sha256": file_sha256(path), "adopted": True}
+        frame.update(extra)
+        self.manifest["frames"].append(frame)
+        if save:
+            self.save()
+        return frame
+
     def _next_id(self, kind, light):
         if kind in LIT_KINDS and light is not None:
             return f"{kind}_{int(light):03d}"
