@@ -1,0 +1,423 @@
+"""Light controllers: the protocol every controller follows, and the serial driver.
+
+"psrig light protocol 1" (ASCII lines ending in ``\\n``, 115200 baud 8N1)::
+
+    ID?               -> PSRIG-LIGHTS 1 <count>
+    ON <i>            -> OK ON <i>         exactly light i lit, all others off
+    OFF               -> OK OFF
+    LEVEL <i> <0-255> -> OK LEVEL <i> <v>
+    STATE?            -> STATE <i or ->
+    anything wrong    -> ERR <code> <text>  1 unknown command, 2 bad index, 3 interlock
+
+Light indices on the wire are 0-based, as in all of psrig's Python code: ``ON 0`` lights the
+first light. The firmware switches everything off when no command arrives for 5 s.
+
+The host side (:class:`SerialLightController`) opens the port exclusively, waits for the board's
+reset (opening the port pulses DTR, which resets an Arduino), checks ``ID?``, retries a command
+once when its reply times out or arrives corrupted, and never assumes a light is on without its
+``OK``. Used as a context manager it switches every light off on the way out, even when the
+block raised.
+
+Other controllers plug in by subclassing :class:`LightController` and registering a factory in
+:data:`LIGHT_DRIVERS` under the ``driver`` name that rigs.yaml uses.
+"""
+
+import abc
+import operator
+import re
+import time
+
+import serial
+
+from pipeline.errors import PsrigError
+
+__all__ = [
+    "LightError", "LightConnectionError", "LightTimeout", "LightProtocolError",
+    "LightCommandError", "LightIndexError", "LightInterlockError",
+    "LightController", "SerialLightController", "SimLightController",
+    "LIGHT_DRIVERS", "make_light_controller", "PROTOCOL_VERSION",
+]
+
+PROTOCOL_VERSION = 1
+_ID_REPLY = re.compile(r"PSRIG-LIGHTS (\d+) (\d+)")
+_ERR_REPLY = re.compile(r"ERR (\d+)(?: (.*))?")
+
+
+class LightError(PsrigError):
+    """A light controller failed; the message names the port, the command and the light."""
+
+
+class LightConnectionError(LightError):
+    """The port cannot be opened, is in use, or the controller vanished."""
+
+
+class LightTimeout(LightError):
+    """No (complete) reply within the timeout, even after the retries."""
+
+
+class LightProtocolError(LightError):
+    """A reply that does not follow the protocol (wrong device, corrupted line)."""
+
+
+class LightCommandError(LightError):
+    """The controller answered ``ERR <code> <text>``; ``code`` holds the code (None if local)."""
+
+    def __init__(self, message, code=None):
+        super().__init__(message)
+        self.code = code
+
+
+class LightIndexError(LightCommandError):
+    """A light index outside 0 .. count-1 (``ERR 2``)."""
+
+
+class LightInterlockError(LightCommandError):
+    """The controller's safety interlock refused to light (``ERR 3``)."""
+
+
+class LightController(abc.ABC):
+    """A device that lights one light at a time.
+
+    Attributes
+    ----------
+    count : int or None
+        Number of lights, indices 0 .. count-1 (known after :meth:`open`).
+    """
+
+    count = None
+    is_open = True  # drivers with a connection report whether it is still up
+
+    @abc.abstractmethod
+    def open(self):
+        """Connect and identify the controller; returns self."""
+
+    @abc.abstractmethod
+    def close(self):
+        """Disconnect (does not switch anything; use the context manager for that)."""
+
+    @abc.abstractmethod
+    def on(self, index):
+        """Light exactly light ``index`` (0-based), all others off; returns once confirmed."""
+
+    @abc.abstractmethod
+    def off(self):
+        """Switch every light off; returns once confirmed."""
+
+    @abc.abstractmethod
+    def set_level(self, index, level):
+        """Set light ``index``'s brightness, ``level`` an int 0-255."""
+
+    @abc.abstractmethod
+    def state(self):
+        """The light the controller reports lit (int), or None when all are off."""
+
+    def check_index(self, index):
+        """Return ``index`` as an int, or raise :class:`LightIndexError` when out of range."""
+        try:
+            index = operator.index(index)
+        except TypeError:
+            raise LightIndexError(f"{self}: light {index!r}: not an integer index") from None
+        if index < 0 or (self.count is not None and index >= self.count):
+            upper = "" if self.count is None else f" (this controller has {self.count} lights, 0-{self.count - 1})"
+            raise LightIndexError(f"{self}: light {index}: index out of range{upper}")
+        return index
+
+    def __enter__(self):
+        self.open()
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        # Lights must never stay on: OFF even when the block failed. An OFF failure must not
+        # hide the block's own exception, but it is reported when the block succeeded.
+        try:
+            if self.is_open:  # a vanished controller cannot be told; its watchdog darkens it
+                self.off()
+        except LightError as off_error:
+            if exc is None:
+                raise
+            exc.add_note(f"also, switching the lights off failed: {off_error}")
+        finally:
+            self.close()
+        return False
+
+
+class SerialLightController(LightController):
+    """A light controller speaking "psrig light protocol 1" over a serial port (pyserial).
+
+    Parameters
+    ----------
+    port : str
+        Serial device, e.g. ``/dev/ttyACM0`` or ``COM3``.
+    baudrate : int
+        Line speed (the protocol's is 115200).
+    timeout : float
+        Seconds to wait for each reply line.
+    write_timeout : float
+        Seconds a write may block before it counts as a timeout.
+    reset_delay : float
+        Seconds to wait after opening for the board to come out of its reset.
+    retries : int
+        Extra attempts after a timed-out or corrupted reply (never after a definite ``ERR``).
+    expected_count : int, optional
+        Refuse a controller whose ``ID?`` reports another light count.
+    """
+
+    def __init__(self, port, *, baudrate=115200, timeout=1.0, write_timeout=1.0,
+                 reset_delay=2.0, retries=1, expected_count=None):
+        self.port = str(port)
+        self.baudrate = int(baudrate)
+        self.timeout = float(timeout)
+        self.write_timeout = float(write_timeout)
+        self.reset_delay = float(reset_delay)
+        self.retries = int(retries)
+        self.expected_count = None if expected_count is None else int(expected_count)
+        self.count = None
+        self.lit = None  # the light last confirmed on by its OK, or None
+        self._serial = None
+
+    def __repr__(self):
+        return f"{type(self).__name__}({self.port!r})"
+
+    def __str__(self):
+        return self.port
+
+    @property
+    def is_open(self):
+        """True while the port is open."""
+        return self._serial is not None
+
+    # -- connection ---------------------------------------------------------------------------
+
+    def open(self):
+        """Open the port exclusively, wait for the board's reset, and check ``ID?``."""
+        if self._serial is not None:
+            return self
+        try:
+            self._serial = serial.Serial(
+                self.port, self.baudrate, bytesize=serial.EIGHTBITS, parity=serial.PARITY_NONE,
+                stopbits=serial.STOPBITS_ONE, timeout=self.timeout,
+                write_timeout=self.write_timeout, exclusive=True)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise LightConnectionError(f"{self.port}: cannot open the light controller: {exc}") from None
+        try:
+            time.sleep(self.reset_delay)
+            self._identify()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close(self):
+        """Close the port (idempotent)."""
+        port, self._serial = self._serial, None
+        self.lit = None
+        if port is not None:
+            try:
+                port.close()
+            except (serial.SerialException, OSError):
+                pass  # already gone: nothing left to release
+
+    def _identify(self):
+        match = self._transact("ID?", _ID_REPLY, expect_text="PSRIG-LIGHTS 1 <count>")
+        version, count = int(match[1]), int(match[2])
+        if version != PROTOCOL_VERSION:
+            raise LightProtocolError(
+                f"{self.port}: the controller speaks psrig light protocol {version}, "
+                f"this driver speaks {PROTOCOL_VERSION}")
+        if self.expected_count is not None and count != self.expected_count:
+            raise LightProtocolError(
+                f"{self.port}: the controller reports {count} lights, the rig expects "
+                f"{self.expected_count}")
+        self.count = count
+
+    # -- commands -----------------------------------------------------------------------------
+
+    def on(self, index):
+        """Light exactly light ``index``; raises unless the controller confirms with ``OK ON i``."""
+        index = self.check_index(index)
+        self.lit = None
+        try:
+            self._transact(f"ON {index}", re.compile(rf"OK ON {index}"), light=index)
+        except LightError:
+            self._off_best_effort()
+            raise
+        self.lit = index
+
+    def off(self):
+        """Switch every light off (``OFF`` -> ``OK OFF``)."""
+        self._transact("OFF", re.compile("OK OFF"))
+        self.lit = None
+
+    def set_level(self, index, level):
+        """Set light ``index``'s brightness to ``level`` (int 0-255)."""
+        index = self.check_index(index)
+        try:
+            level = operator.index(level)
+        except TypeError:
+            level = None
+        if level is None or not 0 <= level <= 255:
+            raise LightCommandError(f"{self.port}: light {index}: level must be an integer 0-255")
+        self._transact(f"LEVEL {index} {level}", re.compile(rf"OK LEVEL {index} {level}"),
+                       light=index)
+
+    def state(self):
+        """The light the controller reports lit (``STATE?``), or None when all are off."""
+        match = self._transact("STATE?", re.compile(r"STATE (\d+|-)"))
+        return None if match[1] == "-" else int(match[1])
+
+    def identify(self):
+        """Ask ``ID?`` again; returns (protocol version, light count)."""
+        match = self._transact("ID?", _ID_REPLY, expect_text="PSRIG-LIGHTS 1 <count>")
+        return int(match[1]), int(match[2])
+
+    def _off_best_effort(self):
+        # After a failed ON the light's state is unknown: try once to make sure it is dark.
+        if self._serial is None:
+            return
+        try:
+            self._transact("OFF", re.compile("OK OFF"), retries=0)
+        except LightError:
+            pass
+
+    # -- the exchange -------------------------------------------------------------------------
+
+    def _transact(self, command, pattern, *, light=None, retries=None, expect_text=None):
+        """Send ``command``, return the reply's match of ``pattern``; retry on timeout/noise."""
+        what = f"{self.port}: " + (f"light {light}: " if light is not None else "") + f"command {command!r}"
+        if self._serial is None:
+            raise LightConnectionError(f"{what}: the light controller is not open")
+        attempts = 1 + (self.retries if retries is None else retries)
+        problems = []
+        for _ in range(attempts):
+            line = self._exchange(command, what)
+            if line is None:
+                problems.append(f"no reply within {self.timeout:g} s")
+                continue
+            match = pattern.fullmatch(line)
+            if match:
+                return match
+            problems.append(self._judge_reply(line, what, light, expect_text or pattern.pattern))
+        kind = LightTimeout if all(p.startswith("no reply") for p in problems) else LightProtocolError
+        raise kind(f"{what}: {'; then '.join(problems)} ({attempts} attempt{'s' * (attempts > 1)})")
+
+    def _exchange(self, command, what):
+        """One write + read; returns the reply line, or None on a (write or read) timeout."""
+        try:
+            self._serial.reset_input_buffer()  # a late reply to an earlier attempt is stale
+            self._serial.write(command.encode("ascii") + b"\n")
+            raw = self._serial.readline()
+        except serial.SerialTimeoutException:
+            return None
+        except (serial.SerialException, OSError) as exc:
+            self.close()
+            raise LightConnectionError(f"{what}: the light controller disconnected ({exc})") from None
+        if not raw.endswith(b"\n"):
+            return None
+        return raw.decode("ascii", errors="replace").strip()
+
+    def _judge_reply(self, line, what, light, expected):
+        """Raise for a definite ``ERR``; describe a retryable bad reply."""
+        err = _ERR_REPLY.fullmatch(line)
+        if err is None:
+            return f"unexpected reply {line!r} (expected {expected!r})"
+        code = int(err[1])
+        if code == 2:
+            raise LightIndexError(f"{what}: the controller rejected light {light}: {line!r}", code)
+        if code == 3:
+            raise LightInterlockError(
+                f"{what}: refused by the safety interlock (is the enclosure closed?): {line!r}", code)
+        # ERR 1 for a command this driver spelled correctly means it was corrupted on the way.
+        return f"the controller replied {line!r}"
+
+
+class SimLightController(SerialLightController):
+    """The serial driver connected to a :class:`rig.sim.firmware.SimulatedLightFirmware`.
+
+    The firmware (started on :meth:`open` unless one is passed in already running) is reachable
+    as :attr:`firmware`, so a simulated camera can read which light is lit.
+
+    Parameters
+    ----------
+    count : int
+        Number of simulated lights.
+    firmware : SimulatedLightFirmware, optional
+        Use this firmware instead of making one; it is started here if needed and stopped on
+        :meth:`close` only if this controller started it.
+    watchdog, boot_delay : float
+        Passed to a firmware made here.
+    **options
+        :class:`SerialLightController` options (timeout, retries, reset_delay ...).
+    """
+
+    def __init__(self, count=32, *, firmware=None, watchdog=5.0, boot_delay=0.0, **options):
+        from rig.sim.firmware import SimulatedLightFirmware  # the sim stays out of real rigs' imports
+
+        options.setdefault("reset_delay", boot_delay)
+        options.setdefault("expected_count", count)
+        self.firmware = firmware or SimulatedLightFirmware(count, watchdog=watchdog,
+                                                           boot_delay=boot_delay)
+        self._owns_firmware = False
+        super().__init__(self.firmware.port or "(simulated, not started)", **options)
+
+    def open(self):
+        """Start the firmware if needed, then open its pty like a serial port."""
+        if self.firmware.port is None or not self.firmware.connected:
+            self.port = self.firmware.start()
+            self._owns_firmware = True
+        self.port = self.firmware.port
+        return super().open()
+
+    def close(self):
+        """Close the port, and stop the firmware if this controller started it."""
+        super().close()
+        if self._owns_firmware:
+            self.firmware.stop()
+            self._owns_firmware = False
+
+
+def _serial_from_config(config, **overrides):
+    options = {key: config[key] for key in ("baudrate", "timeout", "write_timeout", "reset_delay",
+                                            "retries") if config.get(key) is not None}
+    if config.get("count") is not None:
+        options["expected_count"] = config["count"]
+    options.update(overrides)
+    return SerialLightController(config["port"], **options)
+
+
+def _sim_from_config(config, **overrides):
+    options = {key: config[key] for key in ("timeout", "write_timeout", "retries", "watchdog",
+                                            "boot_delay") if config.get(key) is not None}
+    options.update(overrides)
+    return SimLightController(int(config.get("count") or 32), **options)
+
+
+LIGHT_DRIVERS = {
+    "serial": _serial_from_config,
+    "sim": _sim_from_config,
+}
+"""Light drivers by the ``lights.driver`` name of rigs.yaml: factory(config, **overrides)."""
+
+
+def make_light_controller(config, **overrides):
+    """Build the (unopened) light controller a rig's ``lights:`` section describes.
+
+    Parameters
+    ----------
+    config : mapping
+        A rig's ``lights`` section (:class:`rig.config.LightsConfig` or a plain dict) with at
+        least ``driver``; ``port`` for serial drivers.
+    **overrides
+        Constructor options that win over the section (e.g. ``timeout``, ``firmware``).
+
+    Returns
+    -------
+    LightController
+    """
+    driver = config.get("driver")
+    factory = LIGHT_DRIVERS.get(driver)
+    if factory is None:
+        raise LightError(f"lights.driver: unknown light driver {driver!r}; "
+                         f"known: {', '.join(sorted(LIGHT_DRIVERS))}")
+    if driver != "sim" and not config.get("port"):
+        raise LightError(f"lights.port: the {driver!r} light driver needs a port")
+    return factory(config, **overrides)
