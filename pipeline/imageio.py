@@ -46,7 +46,7 @@ def read_image_native(path):
     """
     inp = _open(path)
     try:
-        pixels = inp.read_image()
+        pixels = inp.read_image(oiio.UNKNOWN)  # stored type; the default would convert to float
         if pixels is None:
             raise ImageFileError(f"{path}: truncated or corrupt image ({inp.geterror()})")
         spec = inp.spec()
@@ -74,7 +74,7 @@ def image_size(path):
     return spec.height, spec.width, spec.nchannels
 
 
-def write_image(path, pixels, bits=None):
+def write_image(path, pixels, bits=None, compression=None):
     """Write an image atomically.
 
     Parameters
@@ -87,6 +87,9 @@ def write_image(path, pixels, bits=None):
     bits : {8, 16, 32}, optional
         Pixel type: 8 / 16 bit unsigned or 32-bit float. Default by extension (EXR 32,
         PNG/TIFF 16, JPG/TGA 8).
+    compression : str, optional
+        EXR compression ('zip', 'none', 'piz', ...). Default 'zip'; 'none' is several times
+        faster to write for large noisy frames, which barely compress.
     """
     from pathlib import Path
 
@@ -104,7 +107,7 @@ def write_image(path, pixels, bits=None):
     spec = oiio.ImageSpec(width, height, channels, _BITS_TO_TYPE[bits])
     spec.channelnames = _CHANNEL_NAMES[channels]
     if bits == 32 and path.suffix.lower() == ".exr":
-        spec.attribute("compression", "zip")
+        spec.attribute("compression", compression or "zip")
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec):

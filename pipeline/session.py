@@ -310,8 +310,9 @@ class Session:
             Every parameter that changes the outputs (plain YAML types).
         inputs : dict
             {relative path: sha256} of the files read.
-        outputs : iterable of str
-            Relative paths written; their hashes are stored so later edits are noticed.
+        outputs : iterable of str, or dict
+            Relative paths written; their hashes are stored so later edits are noticed. A dict
+            {relative path: sha256} gives hashes the stage already computed.
         status : str
             'ok', or 'partial' / 'failed' (then ``failed`` in ``extra`` says which and why).
         """
@@ -319,7 +320,7 @@ class Session:
             "params": _plain(params),
             "version": __version__,
             "inputs": dict(inputs),
-            "outputs": {rel: file_sha256(self.path(rel)) for rel in outputs},
+            "outputs": _output_hashes(self, outputs),
             "status": status,
             "finished": now_iso(),
         }
@@ -348,6 +349,12 @@ class Session:
         self.manifest.setdefault("truth", {})[key] = check_relative(rel, f"truth.{key}")
         if save:
             self.save()
+
+
+def _output_hashes(session, outputs):
+    if isinstance(outputs, dict):
+        return {check_relative(rel, "outputs"): digest for rel, digest in outputs.items()}
+    return {rel: file_sha256(session.path(rel)) for rel in outputs}
 
 
 def _frame_id(frame):

@@ -1,0 +1,57 @@
+"""``psrig decode SESSION``: raw frames -> linear EXR + saturation masks in linear/."""
+
+import argparse
+import sys
+
+from ..decode import decode_session
+from ..decode_image import parse_gamma
+from ..session import Session
+
+__all__ = ["register"]
+
+
+def register(subparsers):
+    """Add the ``decode`` sub-command."""
+    parser = subparsers.add_parser(
+        "decode", help="raw frames -> linear float32 EXR + saturation masks",
+        description="Decode every frame of a session into linear/<id>.exr (float32, 1.0 = white "
+                    "level minus black) and linear/<id>_sat.png (255 = saturated). The mean "
+                    "ambient (else dark) frame is subtracted from lit frames.")
+    parser.add_argument("session", metavar="SESSION", help="session folder")
+    parser.add_argument("--method", choices=("mosaic", "postprocess"), default="mosaic",
+                        help="mosaic: from the raw mosaic with per-channel black levels, "
+                             "unbiased (default); postprocess: LibRaw's linear pipeline")
+    parser.add_argument("--grey", action="store_true", help="one grey channel instead of RGB")
+    parser.add_argument("--bin", type=int, choices=(1, 2), default=1, dest="binning",
+                        help="2: half size, 2x2 cells averaged without demosaicing")
+    parser.add_argument("--gamma", default="srgb", type=_gamma,
+                        help="encoding of 8-bit JPG/PNG frames: srgb (default) or an exponent")
+    parser.add_argument("--jobs", type=int, default=None, help="worker processes (default: cores)")
+    parser.add_argument("--force", action="store_true", help="decode again even when up to date")
+    parser.set_defaults(func=run)
+
+
+def _gamma(text):
+    try:
+        return parse_gamma(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def run(args):
+    """Handler: decode, print a summary, exit 1 when a frame failed."""
+    session = Session.open(args.session)
+    before = session.stage("decode")
+    record = decode_session(session, method=args.method,
+                            channels="grey" if args.grey else "rgb", binning=args.binning,
+                            gamma=args.gamma, jobs=args.jobs, force=args.force)
+    done = len(record.get("frames", {}))
+    if record is before:
+        print(f"decode: up to date ({done} frames)")
+        return 0
+    subtracted = record.get("subtracted", {}).get("kind") or "nothing"
+    print(f"decode: {done} frames decoded into {session.root / 'linear'} "
+          f"({record.get('seconds', 0):.1f} s, subtracted: {subtracted})")
+    for frame_id, reason in record.get("failed", {}).items():
+        print(f"psrig decode: error: {reason}", file=sys.stderr)
+    return 0 if record["status"] == "ok" else 1

@@ -1,0 +1,205 @@
+"""The decode stage: every frame of a session -> ``linear/<id>.exr`` + ``linear/<id>_sat.png``.
+
+Dark and ambient frames are decoded as they are. Lit frames (object, sphere, target) have the
+mean ambient frame subtracted when the session has one (it already holds the dark signal), else
+the mean dark frame when it has one. A frame that cannot be decoded is recorded under
+``failed`` (status 'partial') while the others are decoded; a rerun decodes only what is
+missing or stale. Raw files are only read.
+
+Defaults: the unbiased ``mosaic`` path at full size (``binning=1``, bilinear demosaic, which is
+linear and unbiased away from sharp edges). ``binning=2`` interpolates nothing and is faster
+(12 MP frame: decode 0.20 s either way, but a quarter of the output to write: 0.23 s against
+0.74 s; benchmarks/decode.py) at half the resolution.
+
+With ``jobs`` > 1 the frames are decoded in a ``forkserver`` process pool; like any
+multiprocessing code, a calling script needs an ``if __name__ == "__main__":`` guard.
+"""
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .decode_one import check_options, decode_frame, frame_size
+from .decode_pool import run_tasks
+from .errors import InputError, PsrigError, StageError
+from .imageio import read_image, read_mask
+
+__all__ = ["decode_frame", "decode_session", "REFERENCE_KINDS"]
+
+#: Kinds subtracted from lit frames, in order of preference.
+REFERENCE_KINDS = ("ambient", "dark")
+_LIT_KINDS = ("object", "sphere", "target")
+
+
+def _verify(session, frames):
+    """{raw rel: sha256} of present frame files and {id: reason} of missing ones.
+
+    A file whose hash differs from the manifest stops the stage: captures must not change.
+    """
+    inputs, failed = {}, {}
+    for frame in frames:
+        if not session.path(frame["file"]).is_file():
+            failed[frame["id"]] = f"{frame['file']}: raw file of frame {frame['id']!r} is missing"
+            continue
+        inputs[frame["file"]] = session.verify_frame(frame)
+    return inputs, failed
+
+
+def _sizes(session, frames, binning, failed):
+    """Output size of every frame not failed yet; unreadable headers join ``failed``."""
+    sizes = {}
+    for frame in frames:
+        if frame["id"] in failed:
+            continue
+        try:
+            sizes[frame["id"]] = frame_size(session.path(frame["file"]), binning)
+        except PsrigError as exc:
+            failed[frame["id"]] = str(exc)
+    distinct = sorted(set(sizes.values()))
+    if len(distinct) > 1:
+        examples = ", ".join(f"{next(i for i, s in sizes.items() if s == size)} is "
+                             f"{size[1]}x{size[0]}" for size in distinct)
+        raise StageError(f"{session.root}: frames differ in size ({examples}); all frames of "
+                         "a session must have the same size")
+    return sizes
+
+
+def _reusable(session, previous, params, inputs, frame, reference_ids):
+    """True when the previous run's outputs of ``frame`` are still valid."""
+    if not previous or previous.get("params") != params:
+        return False
+    if previous.get("inputs", {}).get(frame["file"]) != inputs.get(frame["file"]):
+        return False
+    if frame["kind"] in _LIT_KINDS and previous.get("subtracted", {}).get("frames") != reference_ids:
+        return False
+    recorded = previous.get("outputs", {})
+    for path in (session.linear_path(frame), session.saturation_path(frame)):
+        rel = session.rel(path)
+        if rel not in recorded or not path.is_file() or session.hash_inputs([rel])[rel] != recorded[rel]:
+            return False
+    return True
+
+
+def _task(session, frame, options, size, reference=None):
+    return {"id": frame["id"], "source": str(session.path(frame["file"])),
+            "linear": str(session.linear_path(frame)),
+            "saturation": str(session.saturation_path(frame)),
+            "options": options, "size": size, "reference": reference}
+
+
+def _write_reference(session, frames, kind, folder):
+    """Mean linear image and union saturation of reference frames, saved as .npy in ``folder``."""
+    total, saturated = None, None
+    for frame in frames:
+        linear = read_image(session.linear_path(frame))
+        flags = read_mask(session.saturation_path(frame))
+        total = linear.astype(np.float64) if total is None else total + linear
+        saturated = flags if saturated is None else saturated | flags
+    paths = {"kind": kind, "mean": str(Path(folder) / "mean.npy"),
+             "saturated": str(Path(folder) / "saturated.npy")}
+    np.save(paths["mean"], (total / len(frames)).astype(np.float32))
+    np.save(paths["saturated"], saturated)
+    return paths
+
+
+class _Run:
+    """State of one decode run: options, hashes, what succeeded (infos) and what failed."""
+
+    def __init__(self, session, params, inputs, sizes, failed, previous, jobs, show):
+        self.session, self.params, self.inputs, self.sizes = session, params, inputs, sizes
+        self.failed, self.previous, self.jobs, self.show = failed, previous, jobs, show
+        self.infos = {}
+
+    def decode(self, frames, reference=None, reference_ids=None):
+        """Decode the frames whose outputs are not reusable; collect infos and failures."""
+        tasks = []
+        for frame in frames:
+            if _reusable(self.session, self.previous, self.params, self.inputs, frame, reference_ids):
+                self.infos[frame["id"]] = self.previous.get("frames", {}).get(frame["id"], {})
+            else:
+                tasks.append(_task(self.session, frame, dict(self.params), self.sizes[frame["id"]],
+                                   reference))
+        if not tasks:
+            return
+        for frame_id, (info, error) in run_tasks(tasks, jobs=self.jobs, show=self.show).items():
+            if error:
+                self.failed[frame_id] = error
+            else:
+                self.infos[frame_id] = info
+
+    def needs_work(self, frames, reference_ids):
+        return any(not _reusable(self.session, self.previous, self.params, self.inputs, f,
+                                 reference_ids) for f in frames)
+
+
+def _references(unlit, infos):
+    """(kind, [frames]) to subtract from lit frames: decoded ambient frames, else dark ones."""
+    for kind in REFERENCE_KINDS:
+        chosen = [f for f in unlit if f["kind"] == kind and f["id"] in infos]
+        if chosen:
+            return kind, chosen
+    return None, []
+
+
+def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma="srgb",
+                   jobs=None, force=False, progress=True):
+    """Decode every frame of a session into ``linear/``.
+
+    Parameters
+    ----------
+    session : Session
+    method, channels, binning, gamma
+        As for :func:`decode_frame`; recorded as the stage's params.
+    jobs : int, optional
+        Worker processes (default: one per core; 1 decodes in this process).
+    force : bool
+        Decode everything again even when the stage record is current.
+    progress : bool
+        Show a progress bar on stderr.
+
+    Returns
+    -------
+    dict
+        The stage record: status 'ok', 'partial' (``failed`` = {frame id: reason}) or
+        'failed'; ``subtracted`` (kind and frame ids), ``frames_not_raw``, per-frame ``frames``
+        info, ``seconds``.
+    """
+    start = time.perf_counter()
+    method, channels, binning, gamma = check_options(method, channels, binning, gamma)
+    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+        raise InputError(f"jobs: expected a number of processes >= 1, got {jobs!r}")
+    params = {"method": method, "channels": channels, "binning": binning, "gamma": gamma}
+    frames = session.frames()
+    if not frames:
+        raise StageError(f"{session.root}: the session has no frames to decode")
+    inputs, failed = _verify(session, frames)
+    if not force and not failed and session.stage_is_current("decode", params, inputs):
+        return session.stage("decode")
+    sizes = _sizes(session, frames, binning, failed)
+    run = _Run(session, params, inputs, sizes, failed, None if force else session.stage("decode"),
+               jobs, progress)
+    unlit = [f for f in frames if f["kind"] not in _LIT_KINDS and f["id"] not in failed]
+    lit = [f for f in frames if f["kind"] in _LIT_KINDS and f["id"] not in failed]
+    run.decode(unlit)
+    kind, references = _references(unlit, run.infos)
+    reference_ids = [f["id"] for f in references]
+    with tempfile.TemporaryDirectory(prefix="psrig-decode-") as folder:
+        reference = None
+        if references and run.needs_work(lit, reference_ids):
+            reference = _write_reference(session, references, kind, folder)
+        run.decode(lit, reference, reference_ids)
+    return _record(session, frames, run, kind, reference_ids, time.perf_counter() - start)
+
+
+def _record(session, frames, run, kind, reference_ids, seconds):
+    done = [f for f in frames if f["id"] in run.infos]
+    outputs = [session.rel(p(f)) for f in done for p in (session.linear_path, session.saturation_path)]
+    status = "ok" if not run.failed else ("partial" if done else "failed")
+    return session.record_stage(
+        "decode", run.params, run.inputs, outputs, status=status, seconds=seconds,
+        failed={k: run.failed[k] for k in sorted(run.failed)},
+        frames_not_raw=[f["id"] for f in done if not run.infos[f["id"]].get("raw", True)],
+        subtracted={"kind": kind, "frames": reference_ids},
+        frames={f["id"]: run.infos[f["id"]] for f in done})

@@ -1,0 +1,107 @@
+"""Frames that are already images (PNG, TIFF, EXR, JPG) turned into linear RGB.
+
+16-bit integer and float files are taken as linear (16-bit: value / 65535). 8-bit files are
+display-encoded: their gamma is undone (the sRGB curve by default, or a power law), and they are
+reported as not raw. An integer value at the type's maximum is saturated.
+"""
+
+import numpy as np
+import OpenImageIO as oiio
+
+from .errors import ImageFileError, InputError
+
+__all__ = ["IMAGE_SUFFIXES", "decode_image", "read_native", "inverse_gamma_lut", "parse_gamma"]
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".exr", ".jpg", ".jpeg")
+
+
+def parse_gamma(gamma):
+    """'srgb' or a positive number (the encoding exponent, e.g. 2.2); returns it normalised."""
+    if isinstance(gamma, str) and gamma.strip().lower() == "srgb":
+        return "srgb"
+    try:
+        value = float(gamma)
+    except (TypeError, ValueError):
+        raise InputError(f"gamma: expected 'srgb' or a number, got {gamma!r}") from None
+    if not 0.1 <= value <= 10:
+        raise InputError(f"gamma: {value} is out of range (0.1 .. 10)")
+    return value
+
+
+def inverse_gamma_lut(gamma, levels=256):
+    """Linear value of each 8-bit code.
+
+    Parameters
+    ----------
+    gamma : 'srgb' or float
+        The encoding: the sRGB curve (IEC 61966-2-1) or code = linear ** (1 / gamma).
+
+    Returns
+    -------
+    ndarray (levels,) float32
+    """
+    code = np.arange(levels, dtype=np.float64) / (levels - 1)
+    if parse_gamma(gamma) == "srgb":
+        linear = np.where(code <= 0.04045, code / 12.92, ((code + 0.055) / 1.055) ** 2.4)
+    else:
+        linear = code ** float(gamma)
+    return linear.astype(np.float32)
+
+
+def read_native(path):
+    """Pixels (H, W, C) in the file's own type (uint8, uint16 or float).
+
+    :func:`pipeline.imageio.read_image_native` asks OpenImageIO for its default (float), which
+    would hide 8-bit codes and 16-bit values; this reader asks for the stored type.
+    """
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ImageFileError(f"{path}: cannot read image ({oiio.geterror() or 'unknown format'})")
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(oiio.UNKNOWN)
+        if pixels is None:
+            raise ImageFileError(f"{path}: truncated or corrupt image ({inp.geterror()})")
+    finally:
+        inp.close()
+    return np.asarray(pixels).reshape(spec.height, spec.width, spec.nchannels)
+
+
+def _to_rgb(pixels, path):
+    channels = pixels.shape[2]
+    if channels in (1, 2):
+        return np.repeat(pixels[:, :, :1], 3, axis=2)
+    if channels in (3, 4):
+        return pixels[:, :, :3]
+    raise InputError(f"{path}: cannot use an image with {channels} channels as a frame")
+
+
+def decode_image(path, *, gamma="srgb"):
+    """Read an image frame as linear RGB.
+
+    Parameters
+    ----------
+    path : str or Path
+    gamma : 'srgb' or float
+        Encoding of 8-bit files (ignored for 16-bit and float files).
+
+    Returns
+    -------
+    rgb : ndarray (H, W, 3) float32
+        Linear, 1.0 = the type's maximum (16-bit) or as stored (float).
+    saturated : ndarray (H, W) bool
+        Integer files: any channel at the type's maximum. Float files: none.
+    info : dict
+        ``raw`` False, ``bits`` (8, 16 or 32), ``gamma`` for 8-bit files.
+    """
+    native = _to_rgb(read_native(path), path)
+    info = {"raw": False, "bits": native.dtype.itemsize * 8}
+    if native.dtype == np.uint8:
+        info["gamma"] = parse_gamma(gamma)
+        rgb = inverse_gamma_lut(gamma)[native]
+    elif np.issubdtype(native.dtype, np.integer):
+        rgb = native.astype(np.float32) * np.float32(1.0 / np.iinfo(native.dtype).max)
+    else:
+        return native.astype(np.float32), np.zeros(native.shape[:2], bool), info
+    saturated = (native == np.iinfo(native.dtype).max).any(axis=2)
+    return rgb, saturated, info
