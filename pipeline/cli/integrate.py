@@ -1,0 +1,95 @@
+"""``psrig integrate``: normals to depth, mesh and a shaded render.
+
+    psrig integrate SESSION [--K FILE] [--method NAME] [--force]
+    psrig integrate --normals PNG --mask PNG [--K FILE] [--method NAME] --out DIR
+"""
+
+from pathlib import Path
+
+from ..errors import InputError
+from ..imageio import read_image, read_mask, read_normal_png
+from ..integrate import METHODS
+from ..integrate_stage import integrate_files, integrate_session, read_intrinsics, write_depth_outputs
+from ..session import Session
+
+__all__ = ["register"]
+
+
+def register(subparsers):
+    parser = subparsers.add_parser(
+        "integrate", help="integrate normals into depth, mesh.ply and a shaded render",
+        description="Integrate a session's normals (normals/normals.exr, normals/mask.png) into "
+                    "depth/, or a normal map from anywhere with --normals/--mask/--out.")
+    parser.add_argument("session", nargs="?", help="session folder")
+    parser.add_argument("--normals", help="normal map: 16-bit PNG (RGB = (n+1)/2) or float EXR")
+    parser.add_argument("--mask", help="mask PNG (white = integrate); default: the normal map's "
+                        "non-black pixels")
+    parser.add_argument("--out", help="output folder for --normals")
+    parser.add_argument("--K", dest="K", help="3x3 intrinsics text file (perspective); "
+                        "omit for orthographic")
+    parser.add_argument("--method", default="smooth", choices=sorted(METHODS),
+                        help="smooth least squares, or discontinuity-preserving bilateral")
+    parser.add_argument("--k", type=float, default=None,
+                        help="bilateral sharpness (larger keeps more discontinuities)")
+    parser.add_argument("--drop-invalid", action="store_true",
+                        help="leave pixels with unusable normals (non-finite, facing away) out of "
+                             "the mask instead of refusing them")
+    parser.add_argument("--force", action="store_true", help="rerun even if up to date")
+    parser.set_defaults(func=run)
+
+
+def run(args):
+    K = read_intrinsics(args.K) if args.K else None
+    options = {} if args.k is None else {"k": args.k}
+    if args.drop_invalid:
+        options["invalid"] = "drop"
+    if args.k is not None and args.method != "bilateral":
+        raise InputError("--k applies to --method bilateral only")
+    if args.normals:
+        return _run_files(args, K, options)
+    if not args.session:
+        raise InputError("give a SESSION folder, or --normals PNG --mask PNG --out DIR")
+    session = Session.open(args.session)
+    result = integrate_session(session, K=K, method=args.method, force=args.force, **options)
+    if result is None:
+        print(f"integrate: {session.root}: up to date (use --force to rerun)")
+        return 0
+    _print(result, session.path("depth"))
+    return 0
+
+
+def _run_files(args, K, options):
+    if args.session:
+        raise InputError("give either a SESSION or --normals, not both")
+    if not args.out:
+        raise InputError("--normals needs --out DIR")
+    normals, mask = _read_normal_map(Path(args.normals))
+    if args.mask:
+        mask = read_mask(args.mask)
+        if mask.shape != normals.shape[:2]:
+            raise InputError(f"{args.mask}: size {mask.shape} differs from {args.normals} "
+                             f"{normals.shape[:2]}")
+    result = integrate_files(normals, mask, K, args.method, args.normals, **options)
+    info = {"inputs": {"normals": str(Path(args.normals).resolve()),
+                       "mask": str(Path(args.mask).resolve()) if args.mask else None}}
+    write_depth_outputs(Path(args.out), result, normals, K, info)
+    _print(result, Path(args.out))
+    return 0
+
+
+def _read_normal_map(path):
+    if not path.is_file():
+        raise InputError(f"{path}: normal map not found")
+    if path.suffix.lower() == ".exr":
+        normals = read_image(path)[:, :, :3]
+        return normals, (normals != 0).any(axis=2)
+    return read_normal_png(path)
+
+
+def _print(result, folder):
+    projection = "perspective" if result.perspective else "orthographic"
+    print(f"integrate: {result.method}, {projection}, {int((result.components > 0).sum())} pixels, "
+          f"{result.n_components} component(s), {result.iterations} CG iterations in "
+          f"{result.outer_iterations} round(s), {result.seconds:.2f} s -> {folder}")
+    for warning in result.warnings:
+        print(f"integrate: note: {warning}")
