@@ -74,7 +74,7 @@ def image_size(path):
     return spec.height, spec.width, spec.nchannels
 
 
-def write_image(path, pixels, bits=None, compression=None):
+def write_image(path, pixels, bits=None, compression=None, channel_names=None):
     """Write an image atomically.
 
     Parameters
@@ -87,6 +87,8 @@ def write_image(path, pixels, bits=None, compression=None):
     bits : {8, 16, 32}, optional
         Pixel type: 8 / 16 bit unsigned or 32-bit float. Default by extension (EXR 32,
         PNG/TIFF 16, JPG/TGA 8).
+    channel_names : sequence of str, optional
+        Names of the channels (EXR); default Y / RGB / RGBA, or c0, c1, ... beyond 4 channels.
     compression : str, optional
         EXR compression ('zip', 'none', 'piz', ...). Default 'zip'; 'none' is several times
         faster to write for large noisy frames, which barely compress.
@@ -97,7 +99,8 @@ def write_image(path, pixels, bits=None, compression=None):
     pixels = np.asarray(pixels)
     if pixels.ndim == 2:
         pixels = pixels[:, :, None]
-    if pixels.ndim != 3 or pixels.shape[2] not in _CHANNEL_NAMES:
+    if pixels.ndim != 3 or (pixels.shape[2] not in _CHANNEL_NAMES and channel_names is None
+                            and path.suffix.lower() != ".exr"):
         raise ImageFileError(f"{path}: cannot write an array of shape {pixels.shape} as an image")
     bits = bits or _DEFAULT_BITS.get(path.suffix.lower())
     if bits not in _BITS_TO_TYPE:
@@ -105,7 +108,8 @@ def write_image(path, pixels, bits=None, compression=None):
     data = _convert(pixels, bits)
     height, width, channels = data.shape
     spec = oiio.ImageSpec(width, height, channels, _BITS_TO_TYPE[bits])
-    spec.channelnames = _CHANNEL_NAMES[channels]
+    spec.channelnames = tuple(channel_names or _CHANNEL_NAMES.get(channels)
+                              or [f"c{i}" for i in range(channels)])
     if bits == 32 and path.suffix.lower() == ".exr":
         spec.attribute("compression", compression or "zip")
     with atomic_path(path) as tmp:

@@ -1,0 +1,53 @@
+"""``psrig eval SESSION [--json]``: errors against the session's ground truth."""
+
+import json
+
+from ..evaluate import evaluate_session
+from ..session import Session
+
+__all__ = ["register", "format_summary"]
+
+
+def register(subparsers):
+    """Add the ``eval`` sub-command."""
+    parser = subparsers.add_parser(
+        "eval", help="errors against ground truth, when the session has it",
+        description="Score normals (angular error), lights (per-light angle) and depth (mean "
+                    "absolute error after an offset or scale fit) against the session's ground "
+                    "truth; writes normals/eval.yaml and normals/error.png.")
+    parser.add_argument("session", metavar="SESSION", help="session folder")
+    parser.add_argument("--json", action="store_true", help="print the numbers as JSON")
+    parser.add_argument("--max-deg", type=float, default=None,
+                        help="top of the error map's colour scale (default: 99th percentile)")
+    parser.set_defaults(func=run)
+
+
+def run(args):
+    session = Session.open(args.session)
+    result = evaluate_session(session, max_deg=args.max_deg)
+    if args.json:
+        print(json.dumps(result, indent=2))
+    elif not result:
+        print(f"eval: {session.root}: nothing to evaluate (no ground truth, or no result for it)")
+    else:
+        print(format_summary(result))
+    return 0
+
+
+def format_summary(result):
+    """One line per evaluated item, as printed by ``psrig eval`` and ``psrig demo``."""
+    lines = []
+    if "normals" in result:
+        n = result["normals"]
+        lines.append(f"normals: mean {n['mean_deg']:.2f} deg, median {n['median_deg']:.2f} deg, "
+                     f"p90 {n['p90_deg']:.2f} deg, under 5/10/20 deg: {n['under_5_deg']:.1%} / "
+                     f"{n['under_10_deg']:.1%} / {n['under_20_deg']:.1%} over {n['pixels']} pixels")
+    if "lights" in result:
+        lt = result["lights"]
+        lines.append(f"lights: mean {lt['mean_deg']:.3f} deg, median {lt['median_deg']:.3f} deg, "
+                     f"max {lt['max_deg']:.3f} deg (light {lt['worst_light']})")
+    if "depth" in result:
+        d = result["depth"]
+        lines.append(f"depth: mean abs {d['mean_abs']:.3f}, median abs {d['median_abs']:.3f} "
+                     f"(after a {d['fit']} fit)")
+    return "\n".join(lines)

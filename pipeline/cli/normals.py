@@ -1,0 +1,41 @@
+"""``psrig normals SESSION [--method NAME] [--t-low F] ...``"""
+
+from ..errors import InputError
+from ..session import Session
+
+
+def register(sub):
+    parser = sub.add_parser("normals", help="photometric stereo: linear frames + lights -> normals/")
+    parser.add_argument("session", help="session folder")
+    parser.add_argument("--method", default="biquadratic",
+                        help="biquadratic (default), lambert, lambert-low, bicubic, or any registered model")
+    parser.add_argument("--t-low", type=float, default=None,
+                        help="use the paper's rule: keep the darkest fraction (0-1, or percent) of each "
+                             "pixel's non-shadowed observations (default: robust selection)")
+    parser.add_argument("--t-shadow", type=float, default=None, help="shadow threshold, fraction of the "
+                        "pixel's 90th-percentile intensity (default 0.1)")
+    parser.add_argument("--reject-k", type=float, default=None, help="robust rejection threshold in "
+                        "robust standard deviations (default 2.5)")
+    parser.add_argument("--shape-prior", type=float, default=None, help="pull toward the object's shared "
+                        "reflectance shape (default 0.01; 0 = independent pixels as in the paper)")
+    parser.add_argument("--force", action="store_true", help="run even when the stage is up to date")
+    parser.set_defaults(func=run)
+
+
+def run(args):
+    from ..normals_stage import normals_session
+
+    t_low = args.t_low
+    if t_low is not None:
+        t_low = t_low / 100.0 if t_low > 1 else t_low
+        if not 0 < t_low <= 1:
+            raise InputError(f"--t-low must be a fraction in (0, 1] or a percentage, got {args.t_low}")
+    session = Session.open(args.session)
+    record = normals_session(session, method=args.method, force=args.force, t_low=t_low,
+                             t_shadow=args.t_shadow, reject_k=args.reject_k, shape_prior=args.shape_prior)
+    if record is None:
+        print(f"{session.root}: normals up to date (use --force to rerun)")
+        return 0
+    counts = ", ".join(f"{k} {v}" for k, v in record["status_counts"].items() if v)
+    print(f"{session.root}: normals ({args.method}) for {record['pixels']} pixels in {record['seconds']:.2f} s: {counts}")
+    return 0

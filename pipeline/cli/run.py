@@ -1,0 +1,48 @@
+"""``psrig run SESSION... [--jobs N] [--force] [--from STAGE] [stage options]``."""
+
+import sys
+
+from ..runner import run_sessions, stage_options
+from ..session import STAGES
+
+__all__ = ["register"]
+
+
+def register(subparsers):
+    """Add the ``run`` sub-command."""
+    parser = subparsers.add_parser(
+        "run", help="every stage that is not up to date",
+        description="Run decode, calibrate, normals, integrate and report on each session, "
+                    "skipping every stage whose record still matches its parameters and input "
+                    "hashes. A changed option reruns that stage and the ones after it.")
+    parser.add_argument("sessions", nargs="+", metavar="SESSION", help="session folders")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="sessions processed in parallel (separate processes)")
+    parser.add_argument("--force", action="store_true", help="rerun every stage")
+    parser.add_argument("--from", dest="start", choices=STAGES, metavar="STAGE",
+                        help=f"rerun from this stage on ({', '.join(STAGES)})")
+    parser.add_argument("--to", dest="stop", choices=STAGES, metavar="STAGE",
+                        help="last stage to run (default: report)")
+    parser.add_argument("--method", help="photometric-stereo method of the normals stage "
+                                         "(default: the stage's, biquadratic)")
+    parser.add_argument("--t-low", type=float, help="normals: fraction of low-frequency "
+                                                    "observations kept (T_low)")
+    parser.add_argument("--integrate-method", help="integration method (smooth, bilateral)")
+    parser.add_argument("--bin", type=int, choices=(1, 2), dest="binning",
+                        help="decode: 2 = half size without demosaicing")
+    parser.set_defaults(func=run)
+
+
+def run(args):
+    if args.jobs < 1:
+        print("psrig run: error: --jobs must be >= 1", file=sys.stderr)
+        return 2
+    options = stage_options(method=args.method, t_low=args.t_low,
+                            integrate_method=args.integrate_method, binning=args.binning)
+    outcomes = run_sessions(args.sessions, options=options, force=args.force, start=args.start,
+                            stop=args.stop,
+                            jobs=args.jobs, echo=lambda line: print(line, flush=True))
+    failed = [o for o in outcomes if o.error]
+    for outcome in failed:
+        print(f"psrig run: error: {outcome.error}", file=sys.stderr)
+    return 1 if failed else 0

@@ -1,0 +1,122 @@
+"""The ``normals`` stage: linear object frames + calibrated lights -> normal maps in ``normals/``.
+
+Reads ``linear/<frame>.exr`` and ``linear/<frame>_sat.png`` (decode stage) and
+``calibration/lights.yaml`` (calibrate stage or an importer); writes ``normals.exr``,
+``normals.png``, ``mask.png``, ``albedo.exr``, ``brdf.exr``, ``residual.exr``, ``status.png``
+(codes of :data:`pipeline.photometric.STATUS`) and ``status_vis.png``; records the stage.
+"""
+
+import time
+
+import numpy as np
+
+from .errors import StageError
+from .imageio import read_image, read_mask, write_image, write_mask, write_normal_png
+from .lightsio import read_lights_yaml
+from .photometric import STATUS, estimate_normals
+from .progress import progress as progress_bar
+
+__all__ = ["normals_session", "load_object_stack", "STAGE"]
+
+STAGE = "normals"
+LIGHTS = "calibration/lights.yaml"
+PAPER_NAMES = ("A", "B", "C", "D", "E", "F", "G", "H", "I")
+_STATUS_COLOURS = np.array([[0, 0, 0], [60, 170, 60], [40, 40, 160], [200, 160, 0], [220, 40, 40],
+                            [150, 80, 200]], np.uint8)
+
+
+def _object_frames(session):
+    frames = sorted(session.frames("object"), key=lambda f: f["light"])
+    if not frames:
+        raise StageError(f"{session.root}: normals: the session has no object frames")
+    lights = [f["light"] for f in frames]
+    if len(set(lights)) != len(lights):
+        raise StageError(f"{session.root}: normals: several object frames share a light index")
+    return frames
+
+
+def _inputs(session, frames, mask_rel):
+    rels = [LIGHTS] + ([mask_rel] if mask_rel else [])
+    for frame in frames:
+        for path in (session.linear_path(frame), session.saturation_path(frame)):
+            if not path.is_file():
+                raise StageError(f"{path}: normals: decoded frame of {frame['id']!r} is missing "
+                                 "(run `psrig decode` first)")
+            rels.append(session.rel(path))
+    if not session.path(LIGHTS).is_file():
+        raise StageError(f"{session.path(LIGHTS)}: normals: no lights (run `psrig calibrate` or import lights)")
+    return session.hash_inputs(rels)
+
+
+def load_object_stack(session, frames, lights):
+    """Grey linear stack (K, H, W) with intensities divided out, and valid (K, H, W) bool."""
+    images, valid = [], []
+    for frame in frames:
+        linear = read_image(session.linear_path(frame))
+        gain = lights.intensities[frame["light"]]
+        gain = gain if gain.size == linear.shape[2] else np.full(linear.shape[2], gain.mean())
+        if (gain <= 0).any():
+            raise StageError(f"{session.path(LIGHTS)}: light {frame['light']} has a non-positive intensity")
+        images.append((linear / gain.astype(np.float32)).mean(axis=2))
+        valid.append(~read_mask(session.saturation_path(frame)))
+        if images[-1].shape != images[0].shape:
+            raise StageError(f"{session.linear_path(frame)}: size {images[-1].shape} differs from "
+                             f"{session.linear_path(frames[0])}'s {images[0].shape}")
+    return np.stack(images), np.stack(valid)
+
+
+def _auto_mask(images):
+    """Pixels whose brightest observation exceeds 5 % of the object's bright level."""
+    peak = images.max(axis=0)
+    return peak > 0.05 * np.percentile(peak, 99.5)
+
+
+def normals_session(session, *, method="biquadratic", force=False, show_progress=True, **options):
+    """Run the normals stage on a session; returns the stage record (None when up to date).
+
+    ``options`` go to :func:`pipeline.photometric.estimate_normals` (t_low, t_shadow, reject_k,
+    shape_prior, ...). Lights flagged in ``lights.yaml`` are left out and listed in the record.
+    """
+    frames = _object_frames(session)
+    mask_rel = session.manifest["lights"].get("object_mask")
+    params = {"method": method, **{k: v for k, v in sorted(options.items()) if v is not None}}
+    inputs = _inputs(session, frames, mask_rel)
+    if not force and session.stage_is_current(STAGE, params, inputs):
+        return None
+    start = time.perf_counter()
+    lights = read_lights_yaml(session.path(LIGHTS))
+    indices = [f["light"] for f in frames]
+    if max(indices) >= len(lights):
+        raise StageError(f"{session.path(LIGHTS)}: {len(lights)} lights, but frame light index {max(indices)} is used")
+    used = [i for i, f in enumerate(frames) if f["light"] not in lights.flags]
+    images, valid = load_object_stack(session, [frames[i] for i in used], lights)
+    mask = read_mask(session.path(mask_rel)) if mask_rel else _auto_mask(images)
+    if mask.shape != images.shape[1:]:
+        raise StageError(f"{session.path(mask_rel)}: mask size {mask.shape} differs from the frames' {images.shape[1:]}")
+    directions = lights.directions[[frames[i]["light"] for i in used]]
+    with progress_bar(total=int(mask.sum()), desc="normals", unit="px", disable=not show_progress) as bar:
+        result = estimate_normals(images, directions, mask, method=method, valid=valid,
+                                  progress=bar.update, **{k: v for k, v in options.items() if v is not None})
+    outputs = _write_outputs(session, result)
+    counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
+    extra = {"pixels": int(result.mask.sum()), "status_counts": counts,
+             "lights_used": len(used), "lights_left_out": sorted(int(k) for k in lights.flags)}
+    if result.shared_shape is not None:
+        extra["shared_shape"] = [round(float(v), 6) for v in result.shared_shape]
+    return session.record_stage(STAGE, params, inputs, outputs, seconds=time.perf_counter() - start, **extra)
+
+
+def _write_outputs(session, result):
+    folder = session.root / "normals"
+    mask = result.mask
+    names = {"normals.exr": result.normals, "albedo.exr": result.albedo, "residual.exr": result.residual}
+    for name, array in names.items():
+        write_image(folder / name, array.astype(np.float32))
+    channel_names = PAPER_NAMES if result.params.shape[2] == 9 else None
+    write_image(folder / "brdf.exr", result.params, channel_names=channel_names)
+    write_normal_png(folder / "normals.png", result.normals, mask & (result.status != 0))
+    write_mask(folder / "mask.png", mask)
+    write_image(folder / "status.png", result.status, bits=8)
+    write_image(folder / "status_vis.png", _STATUS_COLOURS[np.minimum(result.status, 5)], bits=8)
+    return [f"normals/{n}" for n in ("normals.exr", "albedo.exr", "residual.exr", "brdf.exr", "normals.png",
+                                      "mask.png", "status.png", "status_vis.png")]

@@ -1,0 +1,395 @@
+"""Photometric stereo: surface normals from images under known lights.
+
+>>> result = estimate_normals(images, lights, mask=None, method="biquadratic")
+
+Methods are registered by name in :data:`METHODS` (one dispatcher, :func:`estimate_normals`):
+
+``biquadratic`` (default)
+    The paper's per-pixel relaxed biquadratic model (Sec. 5) with robust observation selection
+    and a shared-shape prior; see :mod:`pipeline.ps_biquadratic` and the README for the rule
+    and the measurements behind its defaults.
+``lambert``
+    Lambertian least squares on all valid observations (the classic baseline).
+``lambert-low``
+    Lambertian least squares on the observations the biquadratic method selects.
+any other registered reflectance model (``bicubic``, ``bilinear``, and the models of
+:mod:`pipeline.reflectance` such as ``lafortune``, ``cook-torrance``, ``ward``)
+    The paper's alternation: fix n, fit the model; fix rho, solve n linearly.
+
+All work is vectorised over pixels and done in chunks of ``chunk_size`` pixels, so memory
+stays bounded by the input stack plus a few chunk-sized arrays.
+"""
+
+import os
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from .errors import InputError
+from .ps_biquadratic import fit_pixel_shapes, fit_shared_shape, gauss_newton_normals, half_vectors, \
+    to_paper_order, unit
+from .ps_lambert import lambert_weighted
+from .ps_select import select_darkest, select_robust, shadow_weights
+
+__all__ = ["estimate_normals", "PhotometricResult", "METHODS", "STATUS", "STATUS_NAMES"]
+
+STATUS = {"background": 0, "ok": 1, "shadowed": 2, "too_few": 3, "not_converged": 4, "lambert_fallback": 5}
+STATUS_NAMES = {code: name for name, code in STATUS.items()}
+MIN_OBS = 3
+
+
+@dataclass
+class PhotometricResult:
+    """Output of :func:`estimate_normals`.
+
+    Attributes
+    ----------
+    normals : ndarray (H, W, 3) float32
+        Unit normals, camera frame; zero outside the mask and where status says no estimate.
+    mask : ndarray (H, W) bool
+        Pixels that were processed.
+    status : ndarray (H, W) uint8
+        Codes of :data:`STATUS` (ok, shadowed, too_few, not_converged, lambert_fallback).
+    albedo : ndarray (H, W) float32
+        Diffuse scale (|b|), in units of the input intensities.
+    params : ndarray (H, W, P) float32
+        Reflectance parameters per pixel (biquadratic: A..I of Eq. 2, relative to albedo).
+    residual : ndarray (H, W) float32
+        Root-mean-square residual over the used observations, relative to the albedo.
+    used : ndarray (H, W) uint16
+        Number of observations used per pixel.
+    """
+
+    normals: np.ndarray
+    mask: np.ndarray
+    status: np.ndarray
+    albedo: np.ndarray
+    params: np.ndarray
+    residual: np.ndarray
+    used: np.ndarray
+    method: str = ""
+    options: dict = field(default_factory=dict)
+    seconds: float = 0.0
+    shared_shape: np.ndarray = None
+
+
+# ----------------------------------------------------------------------------- validation
+def _check_inputs(images, lights, mask, valid):
+    images = np.asarray(images)
+    if images.ndim != 3:
+        raise InputError(f"images must be a (K, H, W) stack of grey linear images, got shape {images.shape}")
+    k, height, width = images.shape
+    if k < 3:
+        raise InputError(f"photometric stereo needs at least 3 images, got {k}")
+    lights = np.asarray(lights, dtype=float)
+    if lights.shape[0] != k:
+        raise InputError(f"{lights.shape[0]} light directions for {k} images")
+    if lights.shape not in ((k, 3), (k, height, width, 3)):
+        raise InputError(f"lights must be (K, 3) or (K, H, W, 3), got {lights.shape} for images {images.shape}")
+    finite = np.isfinite(lights).reshape(k, -1).all(axis=1)
+    if not finite.all():
+        raise InputError(f"light {int(np.argmin(finite))} has a non-finite direction")
+    norms = np.linalg.norm(lights, axis=-1).reshape(k, -1)
+    if (norms < 1e-9).any():
+        raise InputError(f"light {int(np.argmax((norms < 1e-9).any(axis=1)))} has a zero direction vector")
+    lights = lights / np.linalg.norm(lights, axis=-1, keepdims=True)
+    shared = lights if lights.ndim == 2 else lights.reshape(k, -1, 3).mean(axis=1)
+    if np.linalg.matrix_rank(shared, tol=1e-6) < 3:
+        raise InputError("light directions have rank < 3 (coplanar lights): normals are not determined")
+    if mask is None:
+        mask = np.any(images > 0, axis=0)
+    mask = np.asarray(mask, dtype=bool)
+    if mask.shape != (height, width):
+        raise InputError(f"mask shape {mask.shape} does not match the images' {(height, width)}")
+    if not mask.any():
+        raise InputError("the mask has no pixels")
+    if valid is not None:
+        valid = np.asarray(valid, dtype=bool)
+        if valid.shape != images.shape:
+            raise InputError(f"valid shape {valid.shape} does not match the images' {images.shape}")
+    bad = ~np.isfinite(images[:, mask]).all(axis=1) if images.dtype.kind == "f" else np.zeros(k, bool)
+    if bad.any():
+        raise InputError(f"image {int(np.argmax(bad))} has non-finite pixel values inside the mask")
+    return images, lights, mask, valid
+
+
+# ----------------------------------------------------------------------------- dispatcher
+def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=None, chunk_size=8192,
+                     workers=None, progress=None, **options):
+    """Estimate surface normals per pixel.
+
+    Parameters
+    ----------
+    images : ndarray (K, H, W)
+        Linear grey images, light intensities divided out.
+    lights : ndarray (K, 3) or (K, H, W, 3)
+        Unit directions toward the lights, camera frame (per pixel for near lights).
+    mask : ndarray (H, W) bool, optional
+        Pixels to process; default: pixels lit in some image.
+    method : str
+        A name in :data:`METHODS` or a registered reflectance model.
+    valid : ndarray (K, H, W) bool, optional
+        False for observations that must not be used (saturated pixels).
+    chunk_size : int
+        Pixels processed at once (memory per chunk is about chunk_size x K x 200 bytes).
+    workers : int, optional
+        Threads working on chunks at once (default: the number of cores).
+    progress : callable, optional
+        Called with the number of pixels finished after each chunk.
+    **options
+        Method options (see each method's function, e.g. :func:`biquadratic_method`).
+
+    Returns
+    -------
+    PhotometricResult
+    """
+    start = time.perf_counter()
+    images, lights, mask, valid = _check_inputs(images, lights, mask, valid)
+    solver = _method(method)
+    k = images.shape[0]
+    flat_images = images.reshape(k, -1)
+    flat_lights = None if lights.ndim == 2 else lights.reshape(k, -1, 3)
+    flat_valid = None if valid is None else valid.reshape(k, -1)
+    pixels = np.flatnonzero(mask)
+
+    def gather(idx):
+        obs = flat_images[:, idx].T.astype(np.float64)
+        obs_valid = None if flat_valid is None else flat_valid[:, idx].T
+        obs_lights = lights if flat_lights is None else np.ascontiguousarray(flat_lights[:, idx].transpose(1, 0, 2))
+        return obs, obs_valid, obs_lights
+
+    context = solver.prepare(gather, pixels, **options) if hasattr(solver, "prepare") else {}
+    out = {}
+    lock = threading.Lock()
+
+    def work(idx):
+        chunk = solver(*gather(idx), context=context, **options)
+        with lock:
+            if not out:
+                out.update(_allocate(mask.shape, chunk["params"].shape[1]))
+            _scatter(out, idx, chunk)
+        if progress:
+            progress(len(idx))
+
+    chunks = [pixels[i:i + chunk_size] for i in range(0, len(pixels), chunk_size)]
+    # numpy releases the GIL in its array loops, so chunks overlap on several cores.
+    n_workers = max(1, min(workers or os.cpu_count() or 1, len(chunks)))
+    # One BLAS thread per worker: nested BLAS threads oversubscribe the cores.
+    with threadpool_limits(1 if n_workers > 1 else None), ThreadPoolExecutor(n_workers) as pool:
+        for future in [pool.submit(work, idx) for idx in chunks]:
+            future.result()
+    normals = out["normals"]
+    return PhotometricResult(
+        normals=normals, mask=mask, status=out["status"], albedo=out["albedo"], params=out["params"],
+        residual=out["residual"], used=out["used"], method=method, options=dict(options),
+        seconds=time.perf_counter() - start, shared_shape=context.get("shape_paper"))
+
+
+def _allocate(shape, n_params):
+    h, w = shape
+    return {"normals": np.zeros((h, w, 3), np.float32), "status": np.zeros((h, w), np.uint8),
+            "albedo": np.zeros((h, w), np.float32), "params": np.zeros((h, w, n_params), np.float32),
+            "residual": np.zeros((h, w), np.float32), "used": np.zeros((h, w), np.uint16)}
+
+
+def _scatter(out, idx, chunk):
+    rows, cols = np.unravel_index(idx, out["status"].shape)
+    b = chunk["b"]
+    albedo = np.linalg.norm(b, axis=1)
+    ok = np.isfinite(b).all(axis=1) & (albedo > 0) & (chunk["status"] != STATUS["too_few"]) \
+        & (chunk["status"] != STATUS["shadowed"])
+    normals = np.where(ok[:, None], b / np.where(ok, albedo, 1.0)[:, None], 0.0)
+    out["normals"][rows, cols] = normals
+    out["albedo"][rows, cols] = np.where(ok, albedo, 0.0)
+    out["status"][rows, cols] = chunk["status"]
+    out["params"][rows, cols] = np.where(ok[:, None], np.nan_to_num(chunk["params"]), 0.0)
+    used = np.maximum(chunk["used"], 1)
+    rms = np.sqrt(np.maximum(chunk["rss"], 0) / used) / np.where(ok, albedo, 1.0)
+    out["residual"][rows, cols] = np.where(ok, np.nan_to_num(rms), 0.0)
+    out["used"][rows, cols] = chunk["used"]
+
+
+# ----------------------------------------------------------------------------- methods
+METHODS = {}
+
+
+def register_method(name):
+    def deco(func):
+        METHODS[name] = func
+        return func
+    return deco
+
+
+def _method(name):
+    if name in METHODS:
+        return METHODS[name]
+    from .reflectance import MODELS
+    if name in MODELS:
+        return _make_generic(name)
+    from .reflectance import MODELS as known
+    raise InputError(f"unknown photometric stereo method {name!r}; known: "
+                     f"{', '.join(sorted(set(METHODS) | set(known)))}")
+
+
+def _base_status(weights, base):
+    used = weights.sum(axis=1)
+    status = np.full(len(weights), STATUS["ok"], np.uint8)
+    status[used < MIN_OBS] = STATUS["too_few"]
+    status[base.sum(axis=1) == 0] = STATUS["shadowed"]
+    return status, used
+
+
+def _select(obs, valid, lights, t_low=None, t_shadow=0.1, reject_k=2.5, **_):
+    """Base (non-shadowed) and selected weights plus the Lambertian start b."""
+    base = shadow_weights(obs, valid, t_shadow)
+    if t_low is None:
+        weights, b = select_robust(obs, lights, base, k_high=reject_k, k_low=reject_k)
+    else:
+        if not 0 < t_low <= 1:
+            raise InputError(f"t_low must be in (0, 1], got {t_low}")
+        weights = select_darkest(obs, base, t_low)
+        b = lambert_weighted(obs, lights, weights)
+    return base, weights, b
+
+
+@register_method("lambert")
+def lambert_method(obs, valid, lights, context=None, **_):
+    """Lambertian least squares on every valid observation."""
+    weights = np.ones_like(obs) if valid is None else valid.astype(obs.dtype)
+    b = lambert_weighted(obs, lights, weights)
+    status, used = _base_status(weights, weights)
+    rss = np.sum(weights * (obs - _shading(b, lights)) ** 2, axis=1)
+    return {"b": b, "status": status, "used": used, "rss": rss, "params": np.linalg.norm(b, axis=1)[:, None]}
+
+
+@register_method("lambert-low")
+def lambert_low_method(obs, valid, lights, context=None, **options):
+    """Lambertian least squares on the selected (low-frequency) observations."""
+    base, weights, b = _select(obs, valid, lights, **options)
+    status, used = _base_status(weights, base)
+    rss = np.sum(weights * (obs - _shading(b, lights)) ** 2, axis=1)
+    return {"b": b, "status": status, "used": used, "rss": rss, "params": np.linalg.norm(b, axis=1)[:, None]}
+
+
+def _shading(b, lights):
+    return b @ lights.T if lights.ndim == 2 else np.einsum("ni,nki->nk", b, lights)
+
+
+class _Biquadratic:
+    """The default method; see the module docstring and :func:`biquadratic_method`."""
+
+    def prepare(self, gather, pixels, shape_prior=0.01, sample_pixels=2000, seed=0, **options):
+        """Fit the shared shape on a fixed random subsample of the object's pixels."""
+        if shape_prior is None or shape_prior <= 0 or options.get("shared_shape") is False:
+            return {}
+        rng = np.random.default_rng(seed)
+        take = np.sort(rng.choice(len(pixels), min(sample_pixels, len(pixels)), replace=False))
+        obs, valid, lights = gather(pixels[take])
+        base, weights, b = _select(obs, valid, lights, **options)
+        good = weights.sum(axis=1) >= 12
+        if good.sum() < 20:
+            return {}
+        h, y = half_vectors(lights)
+        sel = (lambda a: a[good]) if lights.ndim == 3 else (lambda a: a)
+        shape, _ = fit_shared_shape(obs[good], weights[good], b[good], sel(lights), sel(h), sel(y),
+                                    iterations=12)
+        if not np.isfinite(shape).all():
+            return {}
+        return {"shape": shape, "shape_paper": to_paper_order(shape)}
+
+    def __call__(self, obs, valid, lights, context=None, shape_prior=0.01, max_iter=10, tol=1e-6,
+                 min_model_obs=12, **options):
+        base, weights, b = _select(obs, valid, lights, **options)
+        status, used = _base_status(weights, base)
+        h, y = half_vectors(lights)
+        prior = (context or {}).get("shape")
+        coeffs = np.zeros((len(obs), 3, 3))
+        coeffs[:, 0, 0] = 1.0
+        rss = np.sum(weights * (obs - _shading(b, lights)) ** 2, axis=1)
+        fit = used >= min_model_obs
+        status[(used >= MIN_OBS) & ~fit] = STATUS["lambert_fallback"]
+        active = np.flatnonzero(fit)
+        scale = np.sum(weights * obs**2, axis=1) + 1e-300
+        for _ in range(max_iter):
+            if active.size == 0:
+                break
+            sub = _rows(active, lights, h, y)
+            c = fit_pixel_shapes(obs[active], weights[active], b[active], *sub,
+                                 prior=prior, shape_prior=shape_prior if prior is not None else 1e-10)
+            b_new, before, after = gauss_newton_normals(obs[active], weights[active], b[active], c, *sub)
+            better = np.isfinite(after) & (after <= before * (1 + 1e-9))
+            b[active[better]] = b_new[better]
+            coeffs[active] = c
+            rss[active] = np.where(better, after, before)
+            done = ~better | (np.abs(before - after) <= tol * scale[active])
+            active = active[~done]
+        status[active] = STATUS["not_converged"]
+        return {"b": b, "status": status, "used": used, "rss": rss, "params": to_paper_order(coeffs)}
+
+
+def _rows(idx, lights, h, y):
+    if lights.ndim == 2:
+        return lights, h, y
+    return lights[idx], h[idx], y[idx]
+
+
+METHODS["biquadratic"] = _Biquadratic()
+
+
+def biquadratic_method(obs, valid, lights, **options):
+    """Options of the default method.
+
+    Parameters
+    ----------
+    t_low : float, optional
+        Use the paper's rule instead: keep the darkest ``t_low`` fraction (0-1) of each pixel's
+        non-shadowed observations. Default None: robust selection.
+    t_shadow : float
+        Observations below this fraction of the pixel's 90th-percentile intensity are shadows
+        (default 0.1).
+    reject_k : float
+        Robust rejection threshold in robust standard deviations (default 2.5).
+    shape_prior : float
+        Strength of the pull toward the object's shared shape (default 0.01; 0 = the paper's
+        independent per-pixel fit).
+    max_iter, tol
+        Alternation limit (10) and convergence threshold: relative change of the pixel's
+        residual (1e-6; the paper stops at an absolute change of 1e-7).
+    """
+    return METHODS["biquadratic"](obs, valid, lights, context={}, **options)
+
+
+def _make_generic(name):
+    from .reflectance import Geometry, get_model
+
+    model = get_model(name)
+
+    def generic(obs, valid, lights, context=None, max_iter=20, tol=1e-7, **options):
+        base, weights, b = _select(obs, valid, lights, **options)
+        status, used = _base_status(weights, base)
+        n = unit(b)
+        params = None
+        rss = np.zeros(len(obs))
+        prev = None
+        for _ in range(max_iter):
+            geom = Geometry.from_vectors(n, lights)
+            shading = np.maximum(geom.nl, 0.0)
+            params = model.fit(geom, obs, shading=shading, weights=weights)
+            rho = model.evaluate(params, geom)
+            b = lambert_weighted(obs, lights, weights, factor=rho)
+            n = unit(b)
+            geom = Geometry.from_vectors(n, lights)
+            rss = np.sum(weights * (obs - model.evaluate(params, geom) * np.maximum(geom.nl, 0)) ** 2, axis=1)
+            if prev is not None and np.all(np.abs(prev - rss) <= tol * (np.sum(weights * obs**2, axis=1) + 1e-300)):
+                break
+            prev = rss
+        # b's scale is arbitrary here (rho carries the albedo); report |b| as 1 x mean rho.
+        albedo = np.nanmean(np.where(weights > 0, model.evaluate(params, Geometry.from_vectors(n, lights)), np.nan), axis=1)
+        return {"b": n * np.nan_to_num(albedo, nan=1.0)[:, None], "status": status, "used": used, "rss": rss,
+                "params": np.asarray(params).reshape(len(obs), -1)}
+
+    return generic

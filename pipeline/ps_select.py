@@ -1,0 +1,75 @@
+"""Choosing which observations of each pixel photometric stereo uses.
+
+Two rules, both vectorised over pixels:
+
+* :func:`select_robust` (default): drop shadows (below ``t_shadow`` of the pixel's 90th
+  percentile), then reweight a Lambertian fit iteratively, rejecting observations whose residual
+  exceeds ``k`` robust standard deviations (MAD) above (specular highlights) or below (cast
+  shadows, inter-reflection deficits) the fit.
+* :func:`select_darkest`: the paper's rule (Sec. 5.1): drop shadows, keep the darkest ``t_low``
+  fraction of the remaining observations.
+"""
+
+import numpy as np
+
+from .ps_lambert import lambert_weighted
+
+__all__ = ["shadow_weights", "select_robust", "select_darkest"]
+
+
+def shadow_weights(obs, valid=None, t_shadow=0.1):
+    """Weights (N, K): 1 where an observation is above ``t_shadow`` x the pixel's 90th percentile.
+
+    Parameters
+    ----------
+    obs : ndarray (N, K)
+        Linear intensities of N pixels under K lights.
+    valid : ndarray (N, K) bool, optional
+        False for observations that must not be used (saturated).
+    """
+    k = obs.shape[1]
+    ref = np.partition(obs, int(0.9 * (k - 1)), axis=1)[:, int(0.9 * (k - 1))][:, None]
+    weights = (obs > t_shadow * ref) & (ref > 0)
+    if valid is not None:
+        weights &= valid
+    return weights.astype(obs.dtype)
+
+
+def select_robust(obs, lights, base, k_high=2.5, k_low=2.5, iterations=3, min_obs=3):
+    """Robust Lambertian reweighting.
+
+    Returns
+    -------
+    weights : ndarray (N, K)
+        0/1 weights, a subset of ``base``.
+    b : ndarray (N, 3)
+        Albedo-scaled normals of the last Lambertian fit.
+    """
+    weights = base
+    b = lambert_weighted(obs, lights, weights)
+    for _ in range(iterations):
+        resid = obs - b @ lights.T
+        scale = _mad(resid, base) + 1e-9
+        keep = base * ((resid < k_high * scale) & (resid > -k_low * scale))
+        enough = keep.sum(axis=1) >= min_obs
+        weights = np.where(enough[:, None], keep, base)
+        b = lambert_weighted(obs, lights, weights)
+    return weights, b
+
+
+def _mad(resid, weights):
+    """1.4826 x median absolute residual over the weighted observations, per row (N, 1)."""
+    # Sort with the unused observations pushed to the end; the median sits at count // 2.
+    ordered = np.sort(np.where(weights > 0, np.abs(resid), np.inf).astype(np.float32), axis=1)
+    count = (weights > 0).sum(axis=1)
+    mid = np.take_along_axis(ordered, np.maximum(count // 2, 0)[:, None], axis=1)
+    return 1.4826 * np.where(count[:, None] > 0, mid, 0.0).astype(resid.dtype)
+
+
+def select_darkest(obs, base, t_low, min_obs=3):
+    """The paper's rule: keep the darkest ``t_low`` fraction of each pixel's non-shadowed observations."""
+    count = base.sum(axis=1, keepdims=True)
+    ranked = np.where(base > 0, obs, np.inf)
+    rank = np.argsort(np.argsort(ranked, axis=1, kind="stable"), axis=1, kind="stable")
+    keep = rank < np.maximum(np.ceil(t_low * count), min_obs)
+    return (base * keep).astype(obs.dtype)

@@ -1,0 +1,206 @@
+"""The stage runner: decode, calibrate, normals, integrate and report, each only when needed.
+
+Every stage function checks its own record (``session.stage_is_current``) and returns early
+when its parameters and input hashes still match, so the runner simply calls them in order and
+tells "up to date" from "ran" by whether the stage record changed. A changed parameter reruns
+that stage; its new outputs change the input hashes of the stages after it, which rerun in turn;
+the stages before it are untouched. A stage records itself only after all its outputs are
+written (atomically), so interrupting a run leaves every finished stage valid.
+
+Stage adapters live in :data:`RUNNERS` ({name: callable(session, options, force, jobs)}), which
+tests may replace with stubs.
+"""
+
+import concurrent.futures
+import multiprocessing
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import PsrigError, StageError
+from .session import STAGES, Session
+
+__all__ = ["run_session", "run_sessions", "RUNNERS", "StageOutcome", "SessionOutcome",
+           "stage_options"]
+
+LIGHTS = "calibration/lights.yaml"
+
+
+@dataclass
+class StageOutcome:
+    """What one stage did: ``ran`` (bool), ``seconds`` wall time, ``note`` (why skipped)."""
+
+    name: str
+    ran: bool
+    seconds: float
+    note: str = ""
+
+    def describe(self):
+        if self.ran:
+            return f"{self.name}: ran in {self.seconds:.1f} s"
+        return f"{self.name}: up to date" + (f" ({self.note})" if self.note else "")
+
+
+@dataclass
+class SessionOutcome:
+    """Result of one session: stage outcomes, and ``error`` (message) if a stage failed."""
+
+    root: str
+    stages: list = field(default_factory=list)
+    error: str = ""
+
+
+def _decode(session, options, force, jobs):
+    from .decode import decode_session
+
+    decode_session(session, force=force, jobs=jobs, **options)
+
+
+def _calibrate(session, options, force, jobs):
+    if not session.frames("sphere"):
+        if session.path(LIGHTS).is_file():
+            return "lights imported, no sphere frames"
+        raise StageError(f"{session.root}: no sphere frames and no {LIGHTS}; capture a chrome "
+                         "sphere or import lights (psrig import images --lights FILE)")
+    from calibration.stage import calibrate_session
+
+    calibrate_session(session, force=force, **options)
+    return ""
+
+
+def _normals(session, options, force, jobs):
+    if not session.path(LIGHTS).is_file():
+        raise StageError(f"{session.path(LIGHTS)}: missing; the calibrate stage makes it")
+    from .normals_stage import normals_session
+
+    normals_session(session, force=force, **options)
+
+
+def _integrate(session, options, force, jobs):
+    from .integrate_stage import integrate_session
+
+    integrate_session(session, force=force, **options)
+
+
+def _report(session, options, force, jobs):
+    from .report import report_session
+
+    report_session(session, force=force, **options)
+
+
+#: Stage adapters in running order; each returns an optional note or None.
+RUNNERS = {"decode": _decode, "calibrate": _calibrate, "normals": _normals,
+           "integrate": _integrate, "report": _report}
+
+
+def stage_options(*, method=None, t_low=None, integrate_method=None, binning=None, circle=None):
+    """Per-stage keyword options from run-level settings (None = the stage's default)."""
+    chosen = {"decode": {"binning": binning}, "calibrate": {"circle": circle},
+              "normals": {"method": method, "t_low": t_low},
+              "integrate": {"method": integrate_method}, "report": {}}
+    return {stage: {k: v for k, v in opts.items() if v is not None} for stage, opts in chosen.items()}
+
+
+def _run_stage(session, name, options, force, jobs):
+    # record_stage stores a new dict; a skipped stage leaves the old one in place (timestamps
+    # have one-second resolution, too coarse to tell a fast rerun)
+    before = session.stage(name)
+    start = time.perf_counter()
+    try:
+        note = RUNNERS[name](session, options.get(name, {}), force, jobs)
+    except PsrigError as exc:
+        raise StageError(f"stage {name}: {exc}") from None
+    except ModuleNotFoundError as exc:
+        if not (exc.name or "").startswith(("pipeline.", "calibration.")):
+            raise
+        raise StageError(f"stage {name}: module {exc.name} is missing from this installation") from None
+    seconds = time.perf_counter() - start
+    record = session.stage(name)
+    if record is not None and record.get("status", "ok") != "ok":
+        failed = "; ".join(f"{k}: {v}" for k, v in (record.get("failed") or {}).items())
+        raise StageError(f"stage {name}: {session.root}: status {record['status']}"
+                         + (f" ({failed})" if failed else ""))
+    ran = record is not None and record is not before
+    return StageOutcome(name, ran, seconds, note or "")
+
+
+def run_session(root, *, options=None, force=False, start=None, stop=None, jobs=None, echo=None):
+    """Run every stage of one session that is not up to date.
+
+    Parameters
+    ----------
+    root : path
+        Session folder.
+    options : dict, optional
+        {stage: {keyword: value}} passed to the stage functions (see :func:`stage_options`).
+    force : bool
+        Rerun every stage.
+    start : str, optional
+        Rerun this stage and every stage after it (earlier ones run only if not current).
+    stop : str, optional
+        Last stage to run (default: report).
+    jobs : int, optional
+        Worker processes inside a stage (decode).
+    echo : callable, optional
+        Called with one line per stage ("decode: up to date", "normals: ran in 3.2 s").
+
+    Returns
+    -------
+    list of StageOutcome
+        Raises StageError naming the stage (and the file) when one cannot run.
+    """
+    for flag, value in (("--from", start), ("--to", stop)):
+        if value is not None and value not in STAGES:
+            raise StageError(f"{flag} {value!r}: not a stage; stages are {', '.join(STAGES)}")
+    session = Session.open(root)
+    forced = set(STAGES if force else STAGES[STAGES.index(start):] if start else ())
+    outcomes = []
+    for name in STAGES[:STAGES.index(stop or STAGES[-1]) + 1]:
+        outcome = _run_stage(session, name, options or {}, name in forced, jobs)
+        outcomes.append(outcome)
+        if echo:
+            echo(outcome.describe())
+    return outcomes
+
+
+def _run_one(root, options, force, start, stop, jobs):
+    """Process-pool worker: one session, errors returned as text (they cross processes)."""
+    outcome = SessionOutcome(str(root))
+    try:
+        outcome.stages = run_session(root, options=options, force=force, start=start, stop=stop,
+                                     jobs=jobs)
+    except PsrigError as exc:
+        outcome.error = str(exc)
+    return outcome
+
+
+def run_sessions(roots, *, options=None, force=False, start=None, stop=None, jobs=1, echo=None):
+    """Run several sessions, ``jobs`` at a time in separate processes.
+
+    Returns a list of SessionOutcome in the order of ``roots``; a failing session does not stop
+    the others. With one job the sessions run in this process, one after the other.
+    """
+    roots = [str(Path(r)) for r in roots]
+    if jobs <= 1 or len(roots) == 1:
+        outcomes = []
+        for root in roots:
+            say = (lambda line, root=root: echo(f"{root}: {line}")) if echo else None
+            outcome = SessionOutcome(root)
+            try:
+                outcome.stages = run_session(root, options=options, force=force, start=start,
+                                             stop=stop, jobs=None if len(roots) == 1 else 1,
+                                             echo=say)
+            except PsrigError as exc:
+                outcome.error = str(exc)
+            outcomes.append(outcome)
+        return outcomes
+    context = multiprocessing.get_context("forkserver")
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context) as pool:
+        # one decode worker per session: the sessions already share the cores
+        futures = [pool.submit(_run_one, root, options, force, start, stop, 1) for root in roots]
+        outcomes = [f.result() for f in futures]
+    if echo:
+        for outcome in outcomes:
+            for stage in outcome.stages:
+                echo(f"{outcome.root}: {stage.describe()}")
+    return outcomes
