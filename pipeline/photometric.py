@@ -150,6 +150,7 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     start = time.perf_counter()
     images, lights, mask, valid = _check_inputs(images, lights, mask, valid)
     solver = _method(method)
+    options = resolve_selection(lights, options)
     k = images.shape[0]
     flat_images = images.reshape(k, -1)
     flat_lights = None if lights.ndim == 2 else lights.reshape(k, -1, 3)
@@ -185,8 +186,9 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     normals = out["normals"]
     return PhotometricResult(
         normals=normals, mask=mask, status=out["status"], albedo=out["albedo"], params=out["params"],
-        residual=out["residual"], used=out["used"], method=method, options=dict(options),
+        residual=out["residual"], used=out["used"], method=method, options=options,
         seconds=time.perf_counter() - start, shared_shape=context.get("shape_paper"))
+
 
 
 def _allocate(shape, n_params):
@@ -243,7 +245,43 @@ def _base_status(weights, base):
     return status, used
 
 
-def _select(obs, valid, lights, t_low=None, t_shadow=0.1, reject_k=2.5, **_):
+WIDE_SPREAD_DEG = 45.0
+WIDE_T_LOW = 0.5
+
+
+def light_spread_deg(lights):
+    """90th percentile of the lights' angles from their mean direction, in degrees."""
+    shared = lights if lights.ndim == 2 else lights.reshape(lights.shape[0], -1, 3).mean(axis=1)
+    mean = shared.mean(axis=0)
+    mean = mean / max(np.linalg.norm(mean), 1e-12)
+    return float(np.percentile(np.degrees(np.arccos(np.clip(shared @ mean, -1, 1))), 90))
+
+
+def resolve_selection(lights, options):
+    """Turn ``selection='auto'`` (the default) into concrete options from the light geometry.
+
+    Wide light sets (spread > 45 degrees, e.g. domes): the paper's darkest-fraction rule
+    (t_low 0.5) with independent per-pixel fits; the darkest observations then surround each
+    normal, and a broad specular lobe, which covers most observations, is left out by
+    intensity. Narrow cones (DiLiGenT, about 40 degrees): that rule is ill-conditioned (the
+    darkest lights all sit on one side), so robust residual-based rejection and the shared-shape
+    prior are used. Explicit ``t_low``/``shape_prior``/``selection`` options always win.
+    """
+    options = dict(options)
+    if options.get("selection", "auto") != "auto" or options.get("t_low") is not None:
+        options.setdefault("selection", "robust")
+        if options["selection"] == "auto":
+            options["selection"] = "robust"
+        return options
+    if light_spread_deg(np.asarray(lights, float)) > WIDE_SPREAD_DEG:
+        options.update(selection="darkest", t_low=WIDE_T_LOW)
+        options.setdefault("shape_prior", 0.0)
+    else:
+        options["selection"] = "robust"
+    return options
+
+
+def _select(obs, valid, lights, t_low=None, t_shadow=0.1, reject_k=2.5, selection="robust", **_):
     """Base (non-shadowed) and selected weights plus the Lambertian start b."""
     base = shadow_weights(obs, valid, t_shadow)
     if t_low is None:
@@ -345,9 +383,11 @@ def biquadratic_method(obs, valid, lights, **options):
 
     Parameters
     ----------
+    selection : {'auto', 'robust', 'darkest'}
+        'auto' (default) picks from the light geometry, see :func:`resolve_selection`.
     t_low : float, optional
-        Use the paper's rule instead: keep the darkest ``t_low`` fraction (0-1) of each pixel's
-        non-shadowed observations. Default None: robust selection.
+        The paper's rule: keep the darkest ``t_low`` fraction (0-1) of each pixel's
+        non-shadowed observations. Default None (robust selection, or 0.5 for wide lights).
     t_shadow : float
         Observations below this fraction of the pixel's 90th-percentile intensity are shadows
         (default 0.1).

@@ -73,3 +73,4 @@ def select_darkest(obs, base, t_low, min_obs=3):
     rank = np.argsort(np.argsort(ranked, axis=1, kind="stable"), axis=1, kind="stable")
     keep = rank < np.maximum(np.ceil(t_low * count), min_obs)
     return (base * keep).astype(obs.dtype)
+
