@@ -29,6 +29,9 @@ def shadow_weights(obs, valid=None, t_shadow=0.1):
     """
     k = obs.shape[1]
     ref = np.partition(obs, int(0.9 * (k - 1)), axis=1)[:, int(0.9 * (k - 1))][:, None]
+    # A pixel lit by few lights has a dark 90th percentile; its brightest observation then sets
+    # the scale, so that its few lit observations are not all called shadows.
+    ref = np.maximum(ref, 0.25 * obs.max(axis=1, keepdims=True))
     weights = (obs > t_shadow * ref) & (ref > 0)
     if valid is not None:
         weights &= valid
