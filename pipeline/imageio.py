@@ -88,7 +88,9 @@ def write_image(path, pixels, bits=None, compression=None, channel_names=None):
         Pixel type: 8 / 16 bit unsigned or 32-bit float. Default by extension (EXR 32,
         PNG/TIFF 16, JPG/TGA 8).
     channel_names : sequence of str, optional
-        Names of the channels (EXR); default Y / RGB / RGBA, or c0, c1, ... beyond 4 channels.
+        Names of the channels (EXR); default Y / RGB / RGBA, or c00, c01, ... beyond 4 channels.
+        EXR stores channels sorted by name and readers put R, G, B, A first, so names must sort
+        in the intended order and avoid single letters R, G, B, A (use a layer: "brdf.A").
     compression : str, optional
         EXR compression ('zip', 'none', 'piz', ...). Default 'zip'; 'none' is several times
         faster to write for large noisy frames, which barely compress.
@@ -109,7 +111,7 @@ def write_image(path, pixels, bits=None, compression=None, channel_names=None):
     height, width, channels = data.shape
     spec = oiio.ImageSpec(width, height, channels, _BITS_TO_TYPE[bits])
     spec.channelnames = tuple(channel_names or _CHANNEL_NAMES.get(channels)
-                              or [f"c{i}" for i in range(channels)])
+                              or [f"c{i:02d}" for i in range(channels)])
     if bits == 32 and path.suffix.lower() == ".exr":
         spec.attribute("compression", compression or "zip")
     with atomic_path(path) as tmp:

@@ -20,7 +20,7 @@ __all__ = ["normals_session", "load_object_stack", "STAGE"]
 
 STAGE = "normals"
 LIGHTS = "calibration/lights.yaml"
-PAPER_NAMES = ("A", "B", "C", "D", "E", "F", "G", "H", "I")
+PAPER_NAMES = tuple(f"brdf.{c}" for c in "ABCDEFGHI")  # sorts in order; bare A/B/G clash with RGBA
 _STATUS_COLOURS = np.array([[0, 0, 0], [60, 170, 60], [40, 40, 160], [200, 160, 0], [220, 40, 40],
                             [150, 80, 200]], np.uint8)
 
