@@ -90,7 +90,7 @@ def write_image(path, pixels, bits=None, compression=None, channel_names=None):
     channel_names : sequence of str, optional
         Names of the channels (EXR); default Y / RGB / RGBA, or c00, c01, ... beyond 4 channels.
         EXR stores channels sorted by name and readers put R, G, B, A first, so names must sort
-        in the intended order and avoid single letters R, G, B, A (use a layer: "brdf.A").
+        in the intended order and must not end in a bare R, G, B or A (not even "layer.A").
     compression : str, optional
         EXR compression ('zip', 'none', 'piz', ...). Default 'zip'; 'none' is several times
         faster to write for large noisy frames, which barely compress.

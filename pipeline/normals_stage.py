@@ -20,7 +20,10 @@ __all__ = ["normals_session", "load_object_stack", "STAGE"]
 
 STAGE = "normals"
 LIGHTS = "calibration/lights.yaml"
-PAPER_NAMES = tuple(f"brdf.{c}" for c in "ABCDEFGHI")  # sorts in order; bare A/B/G clash with RGBA
+# Eq. 2's parameters with their monomials; names sort in order and avoid the bare R/G/B/A that
+# EXR readers treat as colour channels.
+PAPER_NAMES = ("brdf.A_x2y2", "brdf.B_x2y", "brdf.C_x2", "brdf.D_xy2", "brdf.E_xy", "brdf.F_x",
+               "brdf.G_y2", "brdf.H_y", "brdf.I_1")
 _STATUS_COLOURS = np.array([[0, 0, 0], [60, 170, 60], [40, 40, 160], [200, 160, 0], [220, 40, 40],
                             [150, 80, 200]], np.uint8)
 
