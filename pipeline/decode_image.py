@@ -6,11 +6,11 @@ reported as not raw. An integer value at the type's maximum is saturated.
 """
 
 import numpy as np
-import OpenImageIO as oiio
 
-from .errors import ImageFileError, InputError
+from .errors import InputError
+from .imageio import read_image_native
 
-__all__ = ["IMAGE_SUFFIXES", "decode_image", "read_native", "inverse_gamma_lut", "parse_gamma"]
+__all__ = ["IMAGE_SUFFIXES", "decode_image", "inverse_gamma_lut", "parse_gamma"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".exr", ".jpg", ".jpeg")
 
@@ -48,25 +48,6 @@ def inverse_gamma_lut(gamma, levels=256):
     return linear.astype(np.float32)
 
 
-def read_native(path):
-    """Pixels (H, W, C) in the file's own type (uint8, uint16 or float).
-
-    :func:`pipeline.imageio.read_image_native` asks OpenImageIO for its default (float), which
-    would hide 8-bit codes and 16-bit values; this reader asks for the stored type.
-    """
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ImageFileError(f"{path}: cannot read image ({oiio.geterror() or 'unknown format'})")
-    try:
-        spec = inp.spec()
-        pixels = inp.read_image(oiio.UNKNOWN)
-        if pixels is None:
-            raise ImageFileError(f"{path}: truncated or corrupt image ({inp.geterror()})")
-    finally:
-        inp.close()
-    return np.asarray(pixels).reshape(spec.height, spec.width, spec.nchannels)
-
-
 def _to_rgb(pixels, path):
     channels = pixels.shape[2]
     if channels in (1, 2):
@@ -94,7 +75,7 @@ def decode_image(path, *, gamma="srgb"):
     info : dict
         ``raw`` False, ``bits`` (8, 16 or 32), ``gamma`` for 8-bit files.
     """
-    native = _to_rgb(read_native(path), path)
+    native = _to_rgb(read_image_native(path), path)
     info = {"raw": False, "bits": native.dtype.itemsize * 8}
     if native.dtype == np.uint8:
         info["gamma"] = parse_gamma(gamma)
