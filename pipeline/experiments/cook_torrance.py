@@ -12,8 +12,6 @@ import numpy as np
 
 from ..progress import progress
 from ..reflectance import Geometry, get_model
-from ..reflectance import cook_torrance as _ct  # noqa: F401  (registers cook-torrance)
-from ..reflectance import factorised as _fac  # noqa: F401  (registers biquadratic-factorised)
 from .tables import Table
 
 __all__ = ["protocol_geometry", "low_frequency_weights", "pooled", "fit_mae",

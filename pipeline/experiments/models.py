@@ -13,7 +13,6 @@ from scipy.optimize import least_squares
 
 from ..progress import progress
 from ..reflectance import Geometry, get_model
-from ..reflectance import ashikhmin as _ash, lafortune as _laf, ward as _ward  # noqa: F401
 from ..reflectance.cook_torrance import ROUGHNESS_RANGE, LambertSpecular
 from ..reflectance.merl import read_merl
 from .cook_torrance import low_frequency_weights, pooled, protocol_geometry, protocol_note

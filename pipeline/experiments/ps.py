@@ -14,7 +14,6 @@ import numpy as np
 
 from ..progress import progress
 from ..reflectance import Geometry, get_model, solve_batched
-from ..reflectance import cook_torrance as _ct, lafortune as _laf, ward as _ward  # noqa: F401
 from .cook_torrance import low_frequency_weights
 from .reflectometry import sphere_normals
 from .tables import Table

@@ -10,8 +10,6 @@ import numpy as np
 
 from ..errors import InputError
 from ..reflectance import Geometry, get_model
-from ..reflectance import lafortune as _laf, ward as _ward  # noqa: F401  (register models)
-from ..reflectance import cook_torrance as _ct  # noqa: F401
 from ..reflectance.merl import read_merl
 from .tables import Table
 
