@@ -174,12 +174,20 @@ def _run_one(root, options, force, start, stop, jobs):
     return outcome
 
 
-def run_sessions(roots, *, options=None, force=False, start=None, stop=None, jobs=1, echo=None):
+def run_sessions(roots, *, options=None, force=False, start=None, stop=None, jobs=1, echo=None,
+                 scheduler=None):
     """Run several sessions, ``jobs`` at a time in separate processes.
 
     Returns a list of SessionOutcome in the order of ``roots``; a failing session does not stop
-    the others. With one job the sessions run in this process, one after the other.
+    the others. With one job the sessions run in this process, one after the other. With a
+    ``scheduler`` (a Dask scheduler address, or "local" for a LocalCluster of ``jobs`` workers)
+    the batch runs on Dask, photometric stereo in pixel tiles (:mod:`pipeline.cluster`).
     """
+    if scheduler is not None:
+        from .cluster import run_batch
+
+        return run_batch(roots, scheduler=scheduler, jobs=jobs, options=options, force=force,
+                         start=start, stop=stop, echo=echo)
     roots = [str(Path(r)) for r in roots]
     if jobs <= 1 or len(roots) == 1:
         outcomes = []

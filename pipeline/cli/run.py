@@ -30,6 +30,11 @@ def register(subparsers):
     parser.add_argument("--integrate-method", help="integration method (smooth, bilateral)")
     parser.add_argument("--bin", type=int, choices=(1, 2), dest="binning",
                         help="decode: 2 = half size without demosaicing")
+    parser.add_argument("--scheduler", nargs="?", const="local", metavar="ADDRESS",
+                        help="run on a Dask cluster (psrig[cluster]): the scheduler's address, "
+                             "or no address for a local cluster of --jobs workers; photometric "
+                             "stereo is split into pixel tiles (put it after the session "
+                             "folders, or write --scheduler local)")
     parser.set_defaults(func=run)
 
 
@@ -41,7 +46,12 @@ def run(args):
                             integrate_method=args.integrate_method, binning=args.binning)
     outcomes = run_sessions(args.sessions, options=options, force=args.force, start=args.start,
                             stop=args.stop,
-                            jobs=args.jobs, echo=lambda line: print(line, flush=True))
+                            jobs=args.jobs, echo=lambda line: print(line, flush=True),
+                            scheduler=args.scheduler)
+    if args.scheduler is not None:
+        from ..cluster import summary_table
+
+        print(summary_table(outcomes), flush=True)
     failed = [o for o in outcomes if o.error]
     for outcome in failed:
         print(f"psrig run: error: {outcome.error}", file=sys.stderr)

@@ -1,0 +1,258 @@
+"""Dask batch runs: byte-identical to serial runs, tiles, a worker killed mid-tile, summary."""
+
+import contextlib
+import functools
+import os
+import re
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("distributed")
+import cloudpickle  # noqa: E402  (installed with distributed)
+
+from pipeline import cluster, cluster_tiles, runner  # noqa: E402
+from pipeline.cli import main  # noqa: E402
+from pipeline.imageio import write_image, write_mask  # noqa: E402
+from pipeline.importers import import_images  # noqa: E402
+from pipeline.errors import InputError, StageError  # noqa: E402
+from pipeline.normals_stage import normals_session  # noqa: E402
+from pipeline.session import Session  # noqa: E402
+from tiny_session import sphere  # noqa: E402
+
+# the kill hook below is defined here; workers cannot import this test module by name
+cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+LIGHTS = 16
+SKIP = ("session.yaml",)
+
+
+def ring_lights(count):
+    """Lights in a cone of about 35 degrees (as DiLiGenT): the shared-shape prior is used."""
+    azimuth = np.linspace(0, 2 * np.pi, count, endpoint=False)
+    polar = np.radians(np.where(np.arange(count) % 2, 20.0, 35.0))
+    return np.stack([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth),
+                     np.cos(polar)], -1)
+
+
+def make_session(folder, name, size):
+    """A glossy hemisphere under 16 lights, imported as 16-bit PNGs with a light file and mask."""
+    normals, mask = sphere(size)
+    dirs = ring_lights(LIGHTS)
+    src = folder / f"{name}_src"
+    src.mkdir(parents=True)
+    half = dirs + np.array([0.0, 0.0, 1.0])
+    half /= np.linalg.norm(half, axis=1, keepdims=True)
+    for k, light in enumerate(dirs):
+        diffuse = np.clip(normals @ light, 0, None)
+        gloss = 0.3 * np.clip(normals @ half[k], 0, None) ** 20 * (diffuse > 0)
+        image = np.clip((0.6 * diffuse + gloss) * mask, 0, 1)
+        write_image(src / f"img{k + 1:02d}.png", np.repeat(image[..., None], 3, axis=2))
+    (src / "lights.txt").write_text(f"{LIGHTS}\n" + "".join(f"{x} {y} {z}\n" for x, y, z in dirs))
+    write_mask(src / "mask.png", mask)
+    return import_images(folder / name, str(src / "img*.png"), mask=src / "mask.png",
+                         lights=src / "lights.txt").root
+
+
+def batch(folder, sizes=(72, 64, 80, 68)):
+    # 2345 to 3665 object pixels: two solver chunks of 2048, so two tiles each
+    return [make_session(folder, f"s{i}", size) for i, size in enumerate(sizes)]
+
+
+def session_files(root):
+    """{relative path: bytes} of every file a run wrote, with its wall-clock traces blanked.
+
+    OpenImageIO stamps each EXR with the time of writing (capDate), and records and reports
+    hold seconds, dates, the session's path and the hashes of those EXRs; everything else,
+    every pixel included, must be the same bytes.
+    """
+    files = {}
+    for path in sorted(Path(root).rglob("*")):
+        if path.is_file() and path.name not in SKIP and "raw" not in path.parts:
+            data = re.sub(rb"\d{4}:\d\d:\d\d \d\d:\d\d:\d\d", b"DATE", path.read_bytes())
+            if path.suffix in (".yaml", ".html"):
+                data = data.replace(str(root).encode(), b"ROOT")
+                for pattern in (rb"\d{4}-\d\d-\d\dT[\d:+]+", rb"seconds: [\d.e-]+", rb"[\d.]+ s<",
+                                rb"[0-9a-f]{64}"):
+                    data = re.sub(pattern, b"X", data)
+            files[str(path.relative_to(root))] = data
+    return files
+
+
+@pytest.fixture(scope="module")
+def client():
+    with cluster.open_client(jobs=2) as dask_client:
+        yield dask_client
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory):
+    """Four sessions run serially (the reference outputs)."""
+    roots = batch(tmp_path_factory.mktemp("serial"))
+    outcomes = runner.run_sessions(roots)
+    assert not any(o.error for o in outcomes), [o.error for o in outcomes]
+    return roots
+
+
+def _use_client(monkeypatch, client):
+    """Reuse the module's cluster (startup takes seconds) wherever run_batch opens one."""
+    monkeypatch.setattr(cluster, "open_client", lambda scheduler=None, jobs=2: contextlib.nullcontext(client))
+
+
+def assert_identical(roots, references):
+    for root, reference in zip(roots, references):
+        got, want = session_files(root), session_files(reference)
+        assert sorted(got) == sorted(want), set(got) ^ set(want)
+        different = [rel for rel in want if got[rel] != want[rel]]
+        assert not different, f"{root}: differs from the serial run in {different}"
+        assert not (Path(root) / cluster_tiles.SCRATCH).exists()
+
+
+def test_batch_is_byte_identical_to_serial_and_then_up_to_date(tmp_path, serial, client, monkeypatch):
+    _use_client(monkeypatch, client)
+    roots = batch(tmp_path)
+    lines = []
+    outcomes = cluster.run_batch(roots, echo=lines.append, tile_pixels=1, show_progress=False)
+    assert [o.error for o in outcomes] == [""] * 4
+    assert all([s.name for s in o.stages if s.ran] == ["decode", "normals", "integrate", "report"]
+               for o in outcomes)
+    assert f"{roots[0]}: normals: ran in" in "\n".join(lines)
+    assert_identical(roots, serial)
+    record = Session.open(roots[0]).stage("normals")
+    assert record["pixels"] == Session.open(serial[0]).stage("normals")["pixels"] > 0
+    again = cluster.run_batch(roots, show_progress=False)
+    assert all(not any(s.ran for s in o.stages) and not o.error for o in again)
+    table = cluster.summary_table(outcomes).splitlines()
+    assert len(table) == 5 and "decode, normals, integrate, report" in table[1]
+
+
+def test_worker_killed_mid_tile_loses_and_duplicates_nothing(tmp_path, serial, client, monkeypatch):
+    _use_client(monkeypatch, client)
+    roots = batch(tmp_path)
+    marker = tmp_path / "stalled.pid"
+    pids_before = set(client.run(os.getpid).values())
+    killer = threading.Thread(target=_kill_when_stalled, args=(marker,), daemon=True)
+    killer.start()
+    outcomes = cluster.run_batch(roots, tile_pixels=1, show_progress=False,
+                                 tile_hook=functools.partial(_stall_once, marker, "s1"))
+    killer.join(timeout=5)
+    killed = int(marker.read_text())
+    assert killed in pids_before
+    assert [o.error for o in outcomes] == [""] * 4
+    assert_identical(roots, serial)
+    leftovers = [p for root in roots for p in Path(root).rglob(".*tmp*")]
+    assert leftovers == []
+    deadline = time.time() + 20  # the nanny restarts the killed worker
+    while len(client.scheduler_info()["workers"]) < 2 and time.time() < deadline:
+        time.sleep(0.2)
+
+
+def _stall_once(marker, session_name, plan, tile):
+    """Tile hook: the second tile of one session stalls (once) until the test kills the worker."""
+    if Path(plan.root).name != session_name or tile != plan.tiles[1] or marker.exists():
+        return
+    marker.with_suffix(".tmp").write_text(str(os.getpid()))
+    os.replace(marker.with_suffix(".tmp"), marker)
+    time.sleep(60)
+
+
+def _kill_when_stalled(marker, timeout=60):
+    deadline = time.time() + timeout
+    while not marker.exists() and time.time() < deadline:
+        time.sleep(0.05)
+    if marker.exists():
+        os.kill(int(marker.read_text()), signal.SIGKILL)
+
+
+def test_tiles_are_whole_chunks_covering_every_object_pixel_once():
+    mask = np.random.default_rng(1).random((37, 23)) < 0.6
+    mask[5:9] = False
+    chunk = 16
+    tiles = cluster_tiles.pixel_tiles(mask, 40, chunk)
+    pixels = []
+    for p0, r0, r1, skip, count in tiles:
+        assert p0 % chunk == 0 and count <= 32 and mask[r0].any() and mask[r1 - 1].any()
+        pixels.extend(np.flatnonzero(mask[r0:r1])[skip:skip + count] + r0 * mask.shape[1])
+    assert pixels == list(np.flatnonzero(mask))
+    assert [t[4] for t in cluster_tiles.pixel_tiles(mask, 1, chunk)][:-1] == [chunk] * (len(pixels) // chunk)
+
+
+def test_cli_scheduler_runs_a_batch_and_prints_a_summary(tmp_path, serial, client, monkeypatch, capsys):
+    _use_client(monkeypatch, client)
+    roots = batch(tmp_path, sizes=(72, 64))
+    (tmp_path / "plain").mkdir()
+    code = main(["run", *map(str, roots), str(tmp_path / "plain"), "--scheduler", "--jobs", "2"])
+    out, err = capsys.readouterr()
+    assert code == 1 and "not a session folder" in err and "Traceback" not in err
+    assert f"{roots[0]}: normals: ran in" in out
+    summary = [line for line in out.splitlines() if "decode, normals, integrate, report" in line]
+    assert [line.split()[0] for line in summary] == list(map(str, roots))
+    assert_identical(roots, serial[:2])
+
+
+def test_bad_scheduler_address_is_a_clear_error(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT", "1s")
+    root = make_session(tmp_path, "s", 24)
+    assert main(["run", str(root), "--scheduler", "tcp://127.0.0.1:9"]) == 1
+    err = capsys.readouterr().err
+    assert "127.0.0.1:9" in err and "Traceback" not in err
+
+
+def test_tiles_in_process_match_the_serial_stage_and_reruns_are_idempotent(tmp_path):
+    reference, tiled = (make_session(tmp_path, name, 72) for name in ("a", "b"))
+    for root in (reference, tiled):
+        runner.run_session(root, stop="calibrate")
+    normals_session(Session.open(reference), show_progress=False)
+    plan = cluster_tiles.plan_normals(Session.open(tiled), {"method": None}, tile_pixels=1)
+    assert len(plan.tiles) == 2 and plan.context.get("shape") is not None
+    paths = [cluster_tiles.run_tile(plan, tile) for tile in plan.tiles]
+    first = Path(paths[0]).stat().st_mtime_ns
+    assert cluster_tiles.run_tile(plan, plan.tiles[0]) == paths[0]  # a retried task
+    assert Path(paths[0]).stat().st_mtime_ns == first
+    cluster_tiles.assemble_normals(plan)
+    got, want = session_files(tiled), session_files(reference)
+    normals = [rel for rel in want if rel.startswith("normals/")]
+    assert len(normals) == 8 and all(got[rel] == want[rel] for rel in normals)
+    assert cluster_tiles.plan_normals(Session.open(tiled), {}) is None  # up to date
+    assert not (Path(tiled) / cluster_tiles.SCRATCH).exists()
+
+
+def test_missing_tile_is_an_error_naming_it(tmp_path):
+    root = make_session(tmp_path, "s", 64)
+    runner.run_session(root, stop="calibrate")
+    plan = cluster_tiles.plan_normals(Session.open(root), {}, tile_pixels=1)
+    for tile in plan.tiles[1:]:
+        cluster_tiles.run_tile(plan, tile)
+    with pytest.raises(StageError, match=r"tile-0000000000\.npz"):
+        cluster_tiles.assemble_normals(plan)
+    assert Session.open(root).stage("normals") is None
+
+
+def test_plain_run_needs_no_dask_and_scheduler_says_what_to_install(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed -> ImportError
+    root = make_session(tmp_path, "s", 24)
+    assert main(["run", str(root), "--to", "decode"]) == 0
+    assert main(["run", str(root), "--scheduler"]) == 1
+    err = capsys.readouterr().err
+    assert "psrig[cluster]" in err and "Traceback" not in err
+
+
+def test_non_finite_observation_in_a_tile_is_an_error_naming_image_and_rows(tmp_path):
+    root = make_session(tmp_path, "s", 64)
+    runner.run_session(root, stop="calibrate")
+    plan = cluster_tiles.plan_normals(Session.open(root), {}, tile_pixels=1)
+    p0, r0, r1, skip, count = plan.tiles[1]
+    stack = np.load(plan.scratch("stack.npy"), mmap_mode="r+")
+    row, col = divmod(int(np.flatnonzero(np.load(plan.scratch("mask.npy")))[p0 + 5]), stack.shape[2])
+    stack[3, row, col] = np.nan
+    stack.flush()
+    del stack
+    cluster_tiles.run_tile(plan, plan.tiles[0])
+    with pytest.raises(InputError, match=rf"image 3 .*rows {r0}-{r1 - 1}"):
+        cluster_tiles.run_tile(plan, plan.tiles[1])
+    assert not plan.scratch(f"tile-{p0:010d}.npz").exists()
