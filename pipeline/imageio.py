@@ -114,6 +114,9 @@ def write_image(path, pixels, bits=None, compression=None, channel_names=None):
                               or [f"c{i:02d}" for i in range(channels)])
     if bits == 32 and path.suffix.lower() == ".exr":
         spec.attribute("compression", compression or "zip")
+    # No write-time stamp: identical pixels give identical bytes, so an unchanged rerun of a
+    # stage does not change the hashes that later stages check.
+    spec.attribute("DateTime", "")
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec):

@@ -98,3 +98,14 @@ def test_lp_and_yaml_round_trip(tmp_path):
     (tmp_path / "bad.yaml").write_text("intensities: [[1]]\n")
     with pytest.raises(InputError, match="missing key 'directions'"):
         read_lights_yaml(tmp_path / "bad.yaml")
+
+
+def test_identical_pixels_give_identical_bytes(tmp_path):
+    import time
+    pixels = np.random.default_rng(4).random((6, 6, 3)).astype(np.float32)
+    for name in ("a.exr", "a.png", "a.tif"):
+        write_image(tmp_path / name, pixels)
+        first = (tmp_path / name).read_bytes()
+        time.sleep(1.1)
+        write_image(tmp_path / name, pixels)
+        assert (tmp_path / name).read_bytes() == first, name
