@@ -17,7 +17,10 @@ any other registered reflectance model (``bicubic``, ``bilinear``, and the model
     The paper's alternation: fix n, fit the model; fix rho, solve n linearly.
 
 All work is vectorised over pixels and done in chunks of ``chunk_size`` pixels, so memory
-stays bounded by the input stack plus a few chunk-sized arrays.
+stays bounded by the input stack plus a few chunk-sized arrays. Chunks run on ``workers``
+threads with one BLAS thread each; a method's shared context (the biquadratic shared shape) is
+fitted on one of them while the others start selecting observations. The default chunk (2048 pixels)
+keeps a chunk's (N, K) arrays near the cores' caches: measured faster than 8192.
 """
 
 import os
@@ -30,8 +33,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .errors import InputError
-from .ps_biquadratic import fit_pixel_shapes, fit_shared_shape, gauss_newton_normals, half_vectors, \
-    to_paper_order, unit
+from .ps_biquadratic import alternate_shared, fit_pixel_shapes, fit_shared_shape, gauss_newton_normals, \
+    half_vectors, to_paper_order, unit
 from .ps_lambert import lambert_weighted
 from .ps_select import select_darkest, select_robust, shadow_weights
 
@@ -101,7 +104,10 @@ def _check_inputs(images, lights, mask, valid):
     if np.linalg.matrix_rank(shared, tol=1e-6) < 3:
         raise InputError("light directions have rank < 3 (coplanar lights): normals are not determined")
     if mask is None:
-        mask = np.any(images > 0, axis=0)
+        # Image by image: images > 0 at once would be a (K, H, W) temporary.
+        mask = np.zeros((height, width), bool)
+        for image in images:
+            mask |= image > 0
     mask = np.asarray(mask, dtype=bool)
     if mask.shape != (height, width):
         raise InputError(f"mask shape {mask.shape} does not match the images' {(height, width)}")
@@ -111,14 +117,15 @@ def _check_inputs(images, lights, mask, valid):
         valid = np.asarray(valid, dtype=bool)
         if valid.shape != images.shape:
             raise InputError(f"valid shape {valid.shape} does not match the images' {images.shape}")
-    bad = ~np.isfinite(images[:, mask]).all(axis=1) if images.dtype.kind == "f" else np.zeros(k, bool)
-    if bad.any():
-        raise InputError(f"image {int(np.argmax(bad))} has non-finite pixel values inside the mask")
+    # One image at a time: images[:, mask] would copy the whole masked stack (peak memory).
+    for i in range(k) if images.dtype.kind == "f" else ():
+        if not np.isfinite(images[i][mask]).all():
+            raise InputError(f"image {i} has non-finite pixel values inside the mask")
     return images, lights, mask, valid
 
 
 # ----------------------------------------------------------------------------- dispatcher
-def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=None, chunk_size=8192,
+def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=None, chunk_size=2048,
                      workers=None, progress=None, **options):
     """Estimate surface normals per pixel.
 
@@ -163,7 +170,6 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         obs_lights = lights if flat_lights is None else np.ascontiguousarray(flat_lights[:, idx].transpose(1, 0, 2))
         return obs, obs_valid, obs_lights
 
-    context = solver.prepare(gather, pixels, **options) if hasattr(solver, "prepare") else {}
     out = {}
     lock = threading.Lock()
 
@@ -179,8 +185,14 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     chunks = [pixels[i:i + chunk_size] for i in range(0, len(pixels), chunk_size)]
     # numpy releases the GIL in its array loops, so chunks overlap on several cores.
     n_workers = max(1, min(workers or os.cpu_count() or 1, len(chunks)))
-    # One BLAS thread per worker: nested BLAS threads oversubscribe the cores.
-    with threadpool_limits(1 if n_workers > 1 else None), ThreadPoolExecutor(n_workers) as pool:
+    # One BLAS thread per worker, even with one worker: the products here are thin
+    # ((N, K) @ (K, <= 9)), so BLAS threads only spin, which measured several times slower
+    # (and worse still on a busy machine), besides oversubscribing the cores.
+    with threadpool_limits(1), ThreadPoolExecutor(n_workers) as pool:
+        # Submitted first, so a worker takes it before any chunk; the other workers select the
+        # observations of their first chunk meanwhile and wait for it only when they need it.
+        context = _Context(pool.submit(solver.prepare, gather, pixels, **options)
+                           if hasattr(solver, "prepare") else None)
         for future in [pool.submit(work, idx) for idx in chunks]:
             future.result()
     normals = out["normals"]
@@ -189,6 +201,16 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         residual=out["residual"], used=out["used"], method=method, options=options,
         seconds=time.perf_counter() - start, shared_shape=context.get("shape_paper"))
 
+
+
+class _Context:
+    """A method's prepared context (a dict), computed in the background; ``get`` waits for it."""
+
+    def __init__(self, future):
+        self._future = future
+
+    def get(self, key, default=None):
+        return default if self._future is None else self._future.result().get(key, default)
 
 
 def _allocate(shape, n_params):
@@ -344,20 +366,35 @@ class _Biquadratic:
         base, weights, b = _select(obs, valid, lights, **options)
         status, used = _base_status(weights, base)
         h, y = half_vectors(lights)
-        prior = (context or {}).get("shape")
+        prior = (context or {}).get("shape")   # may wait for the shared shape: select first
         coeffs = np.zeros((len(obs), 3, 3))
         coeffs[:, 0, 0] = 1.0
         rss = np.sum(weights * (obs - _shading(b, lights)) ** 2, axis=1)
         fit = used >= min_model_obs
         status[(used >= MIN_OBS) & ~fit] = STATUS["lambert_fallback"]
         active = np.flatnonzero(fit)
+        ridge = shape_prior if prior is not None else 1e-10
+        if lights.ndim == 2:
+            b_fit, c_fit, rss_fit, moving = alternate_shared(obs[active], weights[active], b[active], lights, h, y,
+                                                             prior=prior, shape_prior=ridge, max_iter=max_iter,
+                                                             tol=tol)
+            b[active], coeffs[active] = b_fit, c_fit
+            rss[active] = np.where(np.isnan(rss_fit), rss[active], rss_fit)
+            active = active[moving]
+        else:
+            active = self._alternate(obs, weights, b, coeffs, rss, active, lights, h, y, prior, ridge, max_iter, tol)
+        status[active] = STATUS["not_converged"]
+        return {"b": b, "status": status, "used": used, "rss": rss, "params": to_paper_order(coeffs)}
+
+    @staticmethod
+    def _alternate(obs, weights, b, coeffs, rss, active, lights, h, y, prior, ridge, max_iter, tol):
+        """The alternation for per-pixel lights; updates b, coeffs, rss; returns the pixels still moving."""
         scale = np.sum(weights * obs**2, axis=1) + 1e-300
         for _ in range(max_iter):
             if active.size == 0:
                 break
             sub = _rows(active, lights, h, y)
-            c = fit_pixel_shapes(obs[active], weights[active], b[active], *sub,
-                                 prior=prior, shape_prior=shape_prior if prior is not None else 1e-10)
+            c = fit_pixel_shapes(obs[active], weights[active], b[active], *sub, prior=prior, shape_prior=ridge)
             b_new, before, after = gauss_newton_normals(obs[active], weights[active], b[active], c, *sub)
             better = np.isfinite(after) & (after <= before * (1 + 1e-9))
             b[active[better]] = b_new[better]
@@ -365,8 +402,7 @@ class _Biquadratic:
             rss[active] = np.where(better, after, before)
             done = ~better | (np.abs(before - after) <= tol * scale[active])
             active = active[~done]
-        status[active] = STATUS["not_converged"]
-        return {"b": b, "status": status, "used": used, "rss": rss, "params": to_paper_order(coeffs)}
+        return active
 
 
 def _rows(idx, lights, h, y):

@@ -15,12 +15,20 @@ Two refinements over the paper's alternation, both measured on DiLiGenT (README)
 * Each pixel's 9 parameters are pulled (ridge, strength ``shape_prior``) toward albedo x one
   shape shared by the object, fitted jointly with the normals of a pixel subsample. With one
   material this resolves the ambiguity; with several, the per-pixel term still adapts.
+
+Speed: with lights shared by all pixels (the usual case), :func:`alternate_shared` runs the
+same alternation as :func:`fit_pixel_shapes` + :func:`gauss_newton_normals` with fewer passes
+over the (N, K) arrays, and the shared-shape fit builds its blocks from (N, K) @ (K, m)
+moment products instead of (N, K, 9) arrays; tests/pipeline/test_photometric_fast.py checks
+both against the general code, which per-pixel (near) lights still use.
 """
 
 import numpy as np
 
+from .ps_lambert import solve3
+
 __all__ = ["half_vectors", "to_paper_order", "shape_and_slope", "fit_pixel_shapes", "gauss_newton_normals",
-           "fit_shared_shape", "unit"]
+           "fit_shared_shape", "alternate_shared", "unit"]
 
 _A = np.repeat(np.arange(3), 3)  # power of x for flat index 3a + c
 _C = np.tile(np.arange(3), 3)    # power of y
@@ -220,20 +228,9 @@ def _shared_state(obs, weights, b, coeffs, lights, h, y3):
 
 
 def _schur_step(obs, weights, b, coeffs, state, lights_b, half_b, y3, damping):
-    _, albedo, n, x, cos, rho, slope, resid = state
-    jac_b = rho[..., None] * lights_b + (cos * slope)[..., None] * (half_b - x[..., None] * n[:, None, :])
-    xpow = _powers(x, 2)
-    ypow = np.broadcast_to(y3, x.shape + (3,))
-    basis = (xpow[..., _A] * ypow[..., _C])                       # (N, K, 9)
-    jac_c = basis * (cos * albedo[:, :1])[..., None]
-    wjb = jac_b * weights[..., None]
-    wjc = jac_c * weights[..., None]
-    u = np.einsum("nki,nkj->nij", wjb, jac_b)
+    blocks = _schur_blocks(weights, state, lights_b, half_b, y3)
+    u, cross, v, e_b, e_c = blocks
     u += (damping * np.trace(u, axis1=1, axis2=2) / 3 + 1e-12)[:, None, None] * np.eye(3)
-    cross = np.einsum("nki,nkj->nij", wjb, jac_c)
-    v = wjc.reshape(-1, 9).T @ jac_c.reshape(-1, 9)
-    e_b = np.einsum("nki,nk->ni", wjb, resid)
-    e_c = np.einsum("nki,nk->i", wjc, resid)
     u_inv = np.linalg.inv(u)
     u_cross = u_inv @ cross
     u_e = np.einsum("nij,nj->ni", u_inv, e_b)
@@ -247,7 +244,232 @@ def _schur_step(obs, weights, b, coeffs, state, lights_b, half_b, y3, damping):
     b_new = b + u_e - u_cross @ d_c
     c_new = coeffs + d_c.reshape(3, 3)
     # Albedo and shape share one scale: keep the mean shape at 1 over the used observations.
-    mean = np.sum(weights * (basis @ c_new.reshape(9))) / max(np.sum(weights), 1e-300)
+    x = state[3]
+    mean = np.sum(weights * shape_and_slope(c_new, x, y3)[0]) / max(np.sum(weights), 1e-300)
     if not np.isfinite(mean) or abs(mean) < 1e-12:
         return None
     return b_new * mean, c_new / mean
+
+
+def _schur_blocks(weights, state, lights_b, half_b, y3):
+    """LM blocks: U (N, 3, 3), cross (N, 3, 9), V (9, 9), e_b (N, 3), e_c (9,), undamped."""
+    _, albedo, n, x, cos, rho, slope, resid = state
+    if lights_b.ndim == 3 and lights_b.strides[0] == 0:
+        return _schur_blocks_shared(weights, state, lights_b[0], half_b[0], y3)
+    jac_b = rho[..., None] * lights_b + (cos * slope)[..., None] * (half_b - x[..., None] * n[:, None, :])
+    xpow = _powers(x, 2)
+    ypow = np.broadcast_to(y3, x.shape + (3,))
+    basis = (xpow[..., _A] * ypow[..., _C])                       # (N, K, 9)
+    jac_c = basis * (cos * albedo[:, :1])[..., None]
+    wjb = jac_b * weights[..., None]
+    wjc = jac_c * weights[..., None]
+    u = np.einsum("nki,nkj->nij", wjb, jac_b)
+    cross = np.einsum("nki,nkj->nij", wjb, jac_c)
+    v = wjc.reshape(-1, 9).T @ jac_c.reshape(-1, 9)
+    e_b = np.einsum("nki,nk->ni", wjb, resid)
+    e_c = np.einsum("nki,nk->i", wjc, resid)
+    return u, cross, v, e_b, e_c
+
+
+def _schur_blocks_shared(weights, state, lights, h, y3):
+    """:func:`_schur_blocks` for shared lights (K, 3), from (N, K) @ (K, m) moment products.
+
+    With jc_(a,c) = albedo cos x^a y^c and jb = rho l + c' (h - x n) (c' = cos slope), every
+    block is a sum over lights of w cos x^a times a per-light table (y^c, l y^c, h y^c).
+    """
+    _, albedo, n, x, cos, rho, slope, resid = state
+    albedo = albedo[:, 0]
+    c = cos * slope
+    u, e_b = _normal_system(weights, resid, rho, c, x, n, lights, h)
+    y5 = _powers(y3[:, 1], 4)
+    ly = (lights[:, :, None] * y3[:, None, :]).reshape(-1, 9)       # [k, 3 i + c] = l_i y^c
+    hy = (h[:, :, None] * y3[:, None, :]).reshape(-1, 9)
+    wcos = weights * cos
+    term = wcos * cos
+    moments = np.empty((5, 5))
+    for i in range(5):
+        moments[i] = albedo**2 @ (term @ y5)
+        term *= x
+    v = moments[_A[:, None] + _A[None, :], _C[:, None] + _C[None, :]]
+    p, q = wcos * rho, wcos * c
+    r = wcos * resid
+    cross = np.empty((len(x), 3, 3, 3))                               # [n, i, a, c]
+    e_c = np.empty((3, 3))
+    q_next = q * x
+    for a in range(3):
+        cross[:, :, a, :] = ((p @ ly + q @ hy).reshape(-1, 3, 3) - n[:, :, None] * (q_next @ y3)[:, None, :])
+        e_c[a] = albedo @ (r @ y3)
+        if a < 2:
+            p, q, r = p * x, q_next, r * x
+            q_next = q * x
+    cross *= albedo[:, None, None, None]
+    return u, cross.reshape(-1, 3, 9), v, e_b, e_c.reshape(9)
+
+
+# ----------------------------------------------------------------------------- fast path
+def alternate_shared(obs, weights, b, lights, h, y, prior=None, shape_prior=0.0, max_iter=10, tol=1e-6):
+    """The alternation (fit shapes, one Gauss-Newton normal step) for lights shared by all pixels.
+
+    Same steps and stopping rule as calling :func:`fit_pixel_shapes` then
+    :func:`gauss_newton_normals` per iteration, computed with fewer passes over the (N, K)
+    arrays: x and n . l carry over from one step's final residual to the next fit, the shape
+    polynomials q_a(y) are evaluated once per fit, and the pixels still moving are compacted.
+
+    Parameters
+    ----------
+    obs, weights : ndarray (N, K)
+    b : ndarray (N, 3)
+        Starting albedo-scaled normals; not modified.
+    lights, h : ndarray (K, 3)
+    y : ndarray (K,)
+    prior, shape_prior
+        As for :func:`fit_pixel_shapes`.
+    max_iter : int
+    tol : float
+        A pixel stops when its residual changes by <= tol x sum_k w obs^2, or rises.
+
+    Returns
+    -------
+    b : ndarray (N, 3)
+    coeffs : ndarray (N, 3, 3)
+    rss : ndarray (N,)
+        Weighted residual sum of squares of the returned b and coeffs (NaN where never fitted).
+    moving : ndarray (N,) bool
+        Pixels still changing after ``max_iter`` iterations.
+    """
+    b = np.array(b, dtype=float)
+    coeffs = np.zeros((len(b), 3, 3))
+    coeffs[:, 0, 0] = 1.0
+    rss = np.full(len(b), np.nan)
+    idx = np.arange(len(b))
+    y = np.asarray(y, float)
+    tables = _tables(lights, h, y)
+    w, wobs = weights, weights * obs
+    scale = np.einsum("nk,nk->n", wobs, obs) + 1e-300
+    albedo, n, x, cos = _geometry(b, lights, h)
+    for _ in range(max_iter):
+        if idx.size == 0:
+            break
+        c = _fit_shapes(x, cos, w, wobs, albedo, tables, prior, shape_prior)
+        q = [c[:, a, :] @ tables["y3"].T for a in range(3)]
+        b_new, before = _gauss_newton_step(obs, w, b[idx], albedo, n, x, cos, q, lights, h, tables)
+        albedo_new, n_new, x_new, cos_new = _geometry(b_new, lights, h)
+        rho = q[2] * x_new
+        rho += q[1]
+        rho *= x_new
+        rho += q[0]
+        after = _weighted_rss(obs, w, rho, cos_new, albedo_new)
+        better = np.isfinite(after) & (after <= before * (1 + 1e-9))
+        b[idx[better]] = b_new[better]
+        coeffs[idx] = c
+        rss[idx] = np.where(better, after, before)
+        keep = better & (np.abs(before - after) > tol * scale)
+        albedo, n, x, cos = albedo_new, n_new, x_new, cos_new
+        if not keep.all():
+            idx, obs, w, wobs, scale = idx[keep], obs[keep], w[keep], wobs[keep], scale[keep]
+            albedo, n, x, cos = albedo[keep], n[keep], x[keep], cos[keep]
+    moving = np.zeros(len(b), bool)
+    moving[idx] = True
+    return b, coeffs, rss, moving
+
+
+def _tables(lights, h, y):
+    """Per-light tables used by the fast path: powers of y and outer products of l and h."""
+    lh = _outer(lights, h)
+    sym = lh + lh.reshape(-1, 3, 3).transpose(0, 2, 1).reshape(-1, 9)
+    f32 = np.float32
+    return {"y5": _powers(y, 4), "y3": _powers(y, 2), "ll32": _outer(lights, lights).astype(f32),
+            "hh32": _outer(h, h).astype(f32), "sym32": sym.astype(f32), "l32": lights.astype(f32),
+            "h32": h.astype(f32)}
+
+
+def _geometry(b, lights, h):
+    albedo = np.linalg.norm(b, axis=1)
+    n = b / np.maximum(albedo, 1e-300)[:, None]
+    return albedo, n, n @ h.T, n @ lights.T
+
+
+def _weighted_rss(obs, w, rho, cos, albedo):
+    """sum_k w (obs - rho cos albedo)^2 per pixel; overwrites rho."""
+    rho *= cos
+    rho *= albedo[:, None]
+    np.subtract(obs, rho, out=rho)
+    return np.einsum("nk,nk,nk->n", w, rho, rho)
+
+
+def _fit_shapes(x, s, w, wobs, albedo, tables, prior, shape_prior):
+    """fit_pixel_shapes from precomputed x = n . h, s = n . l and wobs = w obs."""
+    y5 = tables["y5"]
+    ws = w * s
+    term = ws * s
+    moments = np.empty((len(x), 5, 5))
+    for i in range(5):
+        moments[:, i, :] = term @ y5
+        if i < 4:
+            term *= x
+    np.multiply(wobs, s, out=term)
+    rhs = np.empty((len(x), 3, 3))
+    for a in range(3):
+        rhs[:, a, :] = term @ y5[:, :3]
+        if a < 2:
+            term *= x
+    return _solve_shapes(moments, rhs.reshape(-1, 9), albedo, prior, shape_prior)
+
+
+_MOMENT_INDEX = ((_A[:, None] + _A[None, :]) * 5 + _C[:, None] + _C[None, :]).ravel()  # 9 x 9 -> 5 x 5
+
+
+def _solve_shapes(moments, rhs, albedo, prior, shape_prior):
+    """The ridge-regularised 9 x 9 solve of :func:`fit_pixel_shapes` from moments (N, 5, 5)."""
+    normal = np.take(moments.reshape(-1, 25), _MOMENT_INDEX, axis=1)            # (N, 81)
+    diagonal = normal[:, ::10]
+    scale = diagonal.sum(axis=1)[:, None] / 9.0 + 1e-300
+    ridge = max(shape_prior, 1e-10)
+    diagonal += ridge * scale                                                   # a view: in place
+    if prior is not None:
+        rhs = rhs + ridge * scale * (albedo[:, None] * prior.reshape(1, 9))
+    coeffs = np.linalg.solve(normal.reshape(-1, 9, 9), rhs[..., None])[..., 0]
+    return coeffs.reshape(-1, 3, 3) / np.maximum(albedo, 1e-300)[:, None, None]
+
+
+def _gauss_newton_step(obs, w, b, albedo, n, x, cos, q, lights, h, tables):
+    """One step of :func:`gauss_newton_normals` given the shape polynomials q_a(y) (3 x (N, K)).
+
+    The residual (and so the convergence test) is float64; the normal equations of the step
+    are accumulated in float32, which only perturbs the step by ~1e-6 of its length: the
+    float64 residual after the step still decides whether it is kept. Returns (b, residual
+    before the step).
+    """
+    slope = q[2] * x
+    rho = slope + q[1]
+    slope += rho                                   # q1 + 2 x q2
+    rho *= x
+    rho += q[0]
+    res = rho * cos
+    res *= albedo[:, None]
+    np.subtract(obs, res, out=res)
+    before = np.einsum("nk,nk,nk->n", w, res, res)
+    slope *= cos
+    f32 = np.float32
+    w, rho, c, x, res = w.astype(f32), rho.astype(f32), slope.astype(f32), x.astype(f32), res.astype(f32)
+    res *= w
+    wr, wc = w * rho, w * c
+    normal = (wr * rho) @ tables["ll32"]
+    t = wr * c
+    normal += t @ tables["sym32"]
+    t *= x
+    cross = t @ tables["l32"]
+    np.multiply(wc, c, out=t)
+    normal += t @ tables["hh32"]
+    t *= x
+    cross += t @ tables["h32"]
+    normal = normal.astype(float).reshape(-1, 3, 3)
+    outer = cross[:, :, None] * n[:, None, :]
+    normal = normal - outer - outer.transpose(0, 2, 1)
+    normal += np.einsum("nk,nk->n", t, x)[:, None, None] * (n[:, :, None] * n[:, None, :])
+    np.multiply(res, c, out=c)
+    grad = ((res * rho) @ tables["l32"] + c @ tables["h32"]).astype(float) \
+        - np.einsum("nk,nk->n", c, x)[:, None] * n
+    normal += (1e-12 + 1e-9 * np.trace(normal, axis1=1, axis2=2))[:, None, None] * np.eye(3)
+    return b + solve3(normal, grad), before
+
