@@ -268,7 +268,8 @@ def _base_status(weights, base):
 
 
 WIDE_SPREAD_DEG = 45.0
-WIDE_T_LOW = 0.5
+WIDE_T_LOW = 0.35
+WIDE_T_SHADOW = 0.02
 
 
 def light_spread_deg(lights):
@@ -283,7 +284,9 @@ def resolve_selection(lights, options):
     """Turn ``selection='auto'`` (the default) into concrete options from the light geometry.
 
     Wide light sets (spread > 45 degrees, e.g. domes): the paper's darkest-fraction rule
-    (t_low 0.5) with independent per-pixel fits; the darkest observations then surround each
+    (t_low 0.35, inside the paper's 20-40 %) after a 2 % shadow threshold (lights that reach
+    grazing angles make dim observations informative), with independent per-pixel fits; the
+    darkest observations then surround each
     normal, and a broad specular lobe, which covers most observations, is left out by
     intensity. Narrow cones (DiLiGenT, about 40 degrees): that rule is ill-conditioned (the
     darkest lights all sit on one side), so robust residual-based rejection and the shared-shape
@@ -298,6 +301,7 @@ def resolve_selection(lights, options):
     if light_spread_deg(np.asarray(lights, float)) > WIDE_SPREAD_DEG:
         options.update(selection="darkest", t_low=WIDE_T_LOW)
         options.setdefault("shape_prior", 0.0)
+        options.setdefault("t_shadow", WIDE_T_SHADOW)
     else:
         options["selection"] = "robust"
     return options
@@ -423,7 +427,7 @@ def biquadratic_method(obs, valid, lights, **options):
         'auto' (default) picks from the light geometry, see :func:`resolve_selection`.
     t_low : float, optional
         The paper's rule: keep the darkest ``t_low`` fraction (0-1) of each pixel's
-        non-shadowed observations. Default None (robust selection, or 0.5 for wide lights).
+        non-shadowed observations. Default None (robust selection, or 0.35 for wide lights).
     t_shadow : float
         Observations below this fraction of the pixel's 90th-percentile intensity are shadows
         (default 0.1).

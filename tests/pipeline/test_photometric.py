@@ -92,7 +92,8 @@ def test_auto_selection_follows_light_geometry():
     wide = hemisphere_lights(40, min_elevation_deg=10)
     assert light_spread_deg(narrow) < 45 < light_spread_deg(wide)
     assert resolve_selection(narrow, {})["selection"] == "robust"
-    assert resolve_selection(wide, {})["t_low"] == 0.5
+    assert resolve_selection(wide, {})["t_low"] == 0.35
+    assert resolve_selection(wide, {})["t_shadow"] == 0.02
     assert resolve_selection(wide, {"t_low": 0.3})["t_low"] == 0.3
 
 
