@@ -1,0 +1,245 @@
+"""Finding a sphere's outline in an image: Hough seed, sub-pixel radial edges, robust circle fit.
+
+Circles are ``(cx, cy, r)`` in pixels, 0-based, x = column, y = row (rows downward).
+"""
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import ndimage, optimize
+
+from pipeline.errors import InputError
+
+__all__ = ["Circle", "find_spheres", "find_sphere", "refine_circle", "circle_from_mask",
+           "fit_circle", "sphere_image", "SphereNotFound"]
+
+
+class SphereNotFound(InputError):
+    """No sphere outline could be found in the image."""
+
+
+@dataclass
+class Circle:
+    """A fitted circle.
+
+    Attributes
+    ----------
+    cx, cy, r : float
+        Centre column, centre row and radius, pixels (0-based, rows downward).
+    rms : float
+        RMS distance of the inlier edge points to the circle, pixels (0 when given).
+    inliers : float
+        Fraction of outline rays that support the circle (1 when given).
+    sigma : ndarray (3,)
+        Standard errors of (cx, cy, r), pixels.
+    method : str
+        'given', 'mask' or 'fit'.
+    """
+
+    cx: float
+    cy: float
+    r: float
+    rms: float = 0.0
+    inliers: float = 1.0
+    sigma: np.ndarray = None
+    method: str = "given"
+
+    def __post_init__(self):
+        if self.sigma is None:
+            self.sigma = np.zeros(3)
+
+    @property
+    def params(self):
+        """(cx, cy, r) as a float ndarray (3,)."""
+        return np.array([self.cx, self.cy, self.r], float)
+
+    def as_dict(self):
+        return {"cx": round(float(self.cx), 3), "cy": round(float(self.cy), 3), "r": round(float(self.r), 3),
+                "rms_px": round(float(self.rms), 3), "inliers": round(float(self.inliers), 3),
+                "method": self.method}
+
+
+def sphere_image(images):
+    """Grey image in which the sphere outline is clearest: the max over frames, (H, W) float32.
+
+    images : (K, H, W) or (K, H, W, C). The maximum shows every side of the sphere lit by some
+    light, so the outline has contrast all round.
+    """
+    images = np.asarray(images, dtype=np.float32)
+    grey = images.mean(axis=-1) if images.ndim == 4 else images
+    return grey.max(axis=0)
+
+
+def fit_circle(x, y, start=None, *, iterations=15):
+    """Robust geometric circle fit (Tukey-weighted Levenberg-Marquardt).
+
+    Parameters
+    ----------
+    x, y : ndarray (N,)
+        Edge points, pixels.
+    start : (3,) optional
+        Initial (cx, cy, r); the algebraic (Kasa) fit when omitted.
+
+    Returns
+    -------
+    params : ndarray (3,), weights : ndarray (N,) in [0, 1], sigma : ndarray (3,)
+    """
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if len(x) < 3:
+        raise SphereNotFound("fewer than 3 edge points to fit a circle to")
+    c = np.asarray(start, float) if start is not None else _kasa(x, y)
+    w = np.ones_like(x)
+    for _ in range(iterations):
+        res = np.hypot(x - c[0], y - c[1]) - c[2]
+        scale = max(1.4826 * np.median(np.abs(res - np.median(res))), 0.25)
+        u = res / (4.685 * scale)
+        w = np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
+        sw = np.sqrt(w)
+        new = optimize.least_squares(lambda p: sw * (np.hypot(x - p[0], y - p[1]) - p[2]), c).x
+        done = np.abs(new - c).max() < 1e-4
+        c = new
+        if done:
+            break
+    return c, w, _fit_sigma(x, y, c, w)
+
+
+def _kasa(x, y):
+    a = np.c_[2 * x, 2 * y, np.ones_like(x)]
+    sol = np.linalg.lstsq(a, x * x + y * y, rcond=None)[0]
+    return np.array([sol[0], sol[1], np.sqrt(max(sol[2] + sol[0] ** 2 + sol[1] ** 2, 1e-9))])
+
+
+def _fit_sigma(x, y, c, w):
+    """Standard errors of (cx, cy, r) from the weighted Jacobian."""
+    d = np.maximum(np.hypot(x - c[0], y - c[1]), 1e-9)
+    jac = np.c_[-(x - c[0]) / d, -(y - c[1]) / d, -np.ones_like(x)] * np.sqrt(w)[:, None]
+    res = (d - c[2]) * np.sqrt(w)
+    dof = max(np.count_nonzero(w) - 3, 1)
+    try:
+        cov = np.linalg.inv(jac.T @ jac) * (res @ res) / dof
+    except np.linalg.LinAlgError:
+        return np.full(3, np.inf)
+    return np.sqrt(np.clip(np.diag(cov), 0, None))
+
+
+def _radial_edges(image, c, band, *, rays=720, level=0.85):
+    """Sub-pixel outline points along rays from the centre.
+
+    On each ray the profile is levelled between the inside (median over ``band`` pixels inside)
+    and the background outside; the edge is the outermost crossing of ``level`` of the way
+    toward the background. A chrome sphere's limb mirrors the background behind it, so its
+    true outline is the outer end of the soft transition, not its middle.
+    """
+    inner, outer = band
+    step = 0.25
+    theta = np.linspace(0, 2 * np.pi, rays, endpoint=False)
+    off = np.arange(-outer, outer + step / 2, step)
+    xs = c[0] + np.cos(theta)[:, None] * (c[2] + off)
+    ys = c[1] + np.sin(theta)[:, None] * (c[2] + off)
+    prof = ndimage.map_coordinates(image, [ys, xs], order=1, mode="nearest")
+    lo = np.median(prof[:, off <= -inner], axis=1)
+    hi = np.median(prof[:, off >= inner], axis=1)
+    target = lo + level * (hi - lo)
+    inside = (np.sign(hi - lo)[:, None] * (prof - target[:, None]) <= 0) & (np.abs(off) < inner)
+    found = inside.any(axis=1)
+    idx = np.clip(inside.shape[1] - 1 - np.argmax(inside[:, ::-1], axis=1), 0, len(off) - 2)
+    rows = np.arange(rays)
+    p0, p1 = prof[rows, idx], prof[rows, idx + 1]
+    t = np.clip((target - p0) / np.where(p1 == p0, 1e-12, p1 - p0), 0, 1)
+    radius = c[2] + off[idx] + t * step
+    ok = found & (idx < len(off) - 2)
+    return c[0] + np.cos(theta) * radius, c[1] + np.sin(theta) * radius, ok, np.abs(hi - lo)
+
+
+def refine_circle(image, circle, *, passes=3):
+    """Refine a rough circle to sub-pixel precision on ``image`` (H, W).
+
+    Returns a :class:`Circle` with method 'fit'. Rays with weak contrast (under a third of the
+    median) and outline points the robust fit rejects (the stand, reflections) do not count.
+    """
+    smooth = ndimage.gaussian_filter(np.asarray(image, np.float32), 1.0)
+    c = np.asarray(circle.params if isinstance(circle, Circle) else circle, float)
+    weights, sigma, x = None, np.zeros(3), np.zeros(0)
+    for n in range(passes):
+        wide = 0.08 if n == 0 else 0.035
+        band = (max(4.0, 0.015 * c[2]), max(10.0, wide * c[2]))
+        x, y, ok, contrast = _radial_edges(smooth, c, band)
+        good = ok & (contrast > np.median(contrast[ok]) / 3 if ok.any() else ok)
+        if good.sum() < 20:
+            raise SphereNotFound("the sphere outline has too little contrast to fit a circle")
+        c, weights, sigma = fit_circle(x[good], y[good], c)
+        x, y = x[good], y[good]
+    res = np.hypot(x - c[0], y - c[1]) - c[2]
+    inl = weights > 0.5
+    rms = float(np.sqrt(np.mean(res[inl] ** 2))) if inl.any() else float("inf")
+    return Circle(c[0], c[1], c[2], rms=rms, inliers=float(inl.sum()) / 720, sigma=sigma, method="fit")
+
+
+def _hough(image, count):
+    """Rough circles (cx, cy, r) by a Hough transform on a downscaled image, strongest first."""
+    h, w = image.shape
+    s = max(1, int(round(max(h, w) / 400)))
+    small = cv2.resize(image, (w // s, h // s), interpolation=cv2.INTER_AREA) if s > 1 else image
+    top = np.percentile(small, 99.5) - small.min()
+    if not np.isfinite(top) or top <= 0:
+        return []
+    u8 = cv2.GaussianBlur((np.clip((small - small.min()) / top, 0, 1) * 255).astype(np.uint8), (0, 0), 1.5)
+    side = min(u8.shape)
+    for votes in (30, 20, 14):
+        found = cv2.HoughCircles(u8, cv2.HOUGH_GRADIENT, dp=1, minDist=side / 4, param1=60,
+                                 param2=votes, minRadius=max(4, side // 12), maxRadius=side // 2)
+        if found is not None and len(found[0]) >= count:
+            return [tuple(c * s) for c in found[0][:count]]
+    return [] if found is None else [tuple(c * s) for c in found[0][:count]]
+
+
+def find_spheres(image, count=1, *, min_inliers=0.4, max_rms=None):
+    """Find ``count`` spheres in a grey image (H, W) with no clicks.
+
+    Returns a list of :class:`Circle` ordered left to right. Raises :class:`SphereNotFound`
+    when fewer than ``count`` credible outlines are found (a credible one has at least
+    ``min_inliers`` of its outline supporting it and an RMS edge distance under
+    ``max_rms`` pixels, 2 % of the radius by default).
+    """
+    image = np.asarray(image, np.float32)
+    if image.ndim != 2:
+        raise InputError(f"sphere image must be (H, W), got shape {image.shape}")
+    circles = []
+    for seed in _hough(image, count):
+        try:
+            circle = refine_circle(image, seed)
+        except SphereNotFound:
+            continue
+        limit = max_rms if max_rms is not None else max(1.0, 0.02 * circle.r)
+        if circle.inliers >= min_inliers and circle.rms <= limit and _inside(circle, image.shape):
+            circles.append(circle)
+    if len(circles) < count:
+        raise SphereNotFound(f"found {len(circles)} sphere outline(s), expected {count}; "
+                             "give the circle with --circle CX,CY,R or a --sphere-mask")
+    return sorted(circles, key=lambda c: c.cx)
+
+
+def find_sphere(image, **options):
+    """The single sphere in a grey image (H, W); see :func:`find_spheres`."""
+    return find_spheres(image, 1, **options)[0]
+
+
+def _inside(circle, shape):
+    h, w = shape
+    return 0 <= circle.cx < w and 0 <= circle.cy < h and 3 < circle.r < max(h, w)
+
+
+def circle_from_mask(mask):
+    """Circle of a sphere mask (H, W) bool, fitted to its boundary pixels (robust)."""
+    mask = np.asarray(mask, bool)
+    if mask.sum() < 20:
+        raise SphereNotFound("the sphere mask is empty or too small")
+    edge = mask & ~ndimage.binary_erosion(mask)
+    ys, xs = np.nonzero(edge)
+    # boundary pixels sit half a pixel inside the true outline
+    area_r = np.sqrt(mask.sum() / np.pi)
+    c, w, sigma = fit_circle(xs.astype(float), ys.astype(float))
+    res = np.hypot(xs - c[0], ys - c[1]) - c[2]
+    return Circle(c[0], c[1], area_r, rms=float(np.sqrt(np.mean(res[w > 0.5] ** 2))),
+                  inliers=float((w > 0.5).mean()), sigma=sigma, method="mask")
