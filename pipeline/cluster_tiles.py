@@ -33,8 +33,9 @@ from .atomic import atomic_path
 from .errors import InputError, StageError
 from .imageio import read_mask
 from .lightsio import read_lights_yaml
+from .near_lights import PointLights, observations_at
 from .normals_stage import LIGHTS, STAGE, _auto_mask, _inputs, _object_frames, _write_outputs, \
-    load_object_stack
+    light_model, load_object_stack
 from .photometric import STATUS, PhotometricResult, _method, estimate_normals, resolve_selection
 from .session import Session
 
@@ -133,7 +134,10 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=No
     method = options.pop("method", "biquadratic")
     frames = _object_frames(session)
     mask_rel = session.manifest["lights"].get("object_mask")
+    lights_model = options.pop("lights_model", "auto")
     params = {"method": method, **dict(sorted(options.items()))}
+    if lights_model != "auto":
+        params["lights_model"] = lights_model
     inputs = _inputs(session, frames, mask_rel)
     if not force and session.stage_is_current(STAGE, params, inputs):
         return None
@@ -155,10 +159,16 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=No
         raise InputError(f"{session.root}: normals: the mask has no pixels")
     with atomic_path(folder / "mask.npy") as tmp:
         np.save(tmp, mask)
-    directions = _unit_directions(session, lights.directions[[f["light"] for f in used]])
+    chosen = [f["light"] for f in used]
+    model = light_model(lights, lights_model)
+    directions = _unit_directions(session, lights.directions[chosen])
     solved = resolve_selection(directions, options)
+    if model == "near":
+        directions = PointLights(lights.positions[chosen], mask.shape)
+        solved = resolve_selection(directions.central_directions, options)
     context = _prepare(method, folder, mask, directions, solved)
-    extra = {"lights_used": len(used), "lights_left_out": sorted(int(k) for k in lights.flags)}
+    extra = {"lights_used": len(used), "lights_left_out": sorted(int(k) for k in lights.flags),
+             "light_model": model}
     chunk = chunk or serial_chunk_size()
     return TilePlan(str(session.root), method, solved, directions, context, mask.shape,
                     pixel_tiles(mask, tile_pixels, chunk), params, inputs, chunk, extra, started)
@@ -190,7 +200,8 @@ def _prepare(method, folder, mask, lights, options):
     flat, flat_valid = stack.reshape(k, -1), valid.reshape(k, -1)
 
     def gather(idx):
-        return flat[:, idx].T.astype(np.float64), flat_valid[:, idx].T, lights
+        obs, per_pixel = observations_at(lights, flat[:, idx].T.astype(np.float64), idx)
+        return obs, flat_valid[:, idx].T, per_pixel
 
     return solver.prepare(gather, np.flatnonzero(mask), **options)
 
@@ -224,7 +235,8 @@ def run_tile(plan, tile, hook=None):
                 bad = int(np.argmin(np.isfinite(obs).all(axis=0)))
                 raise InputError(f"{plan.root}: normals: image {bad} has non-finite pixel values "
                                  f"inside the mask (rows {r0}-{r1 - 1})")
-            pieces.append(solver(obs, block_valid[:, idx].T, plan.lights, context=plan.context, **plan.options))
+            obs, lights = observations_at(plan.lights, obs, idx + r0 * width)
+            pieces.append(solver(obs, block_valid[:, idx].T, lights, context=plan.context, **plan.options))
     if hook is not None:
         hook(plan, tile)
     keys = ("b", "status", "used", "rss", "params")

@@ -13,6 +13,7 @@ import numpy as np
 from .errors import StageError
 from .imageio import read_image, read_mask, write_image, write_mask, write_normal_png
 from .lightsio import read_lights_yaml
+from .near_lights import PointLights
 from .photometric import STATUS, estimate_normals
 from .progress import progress as progress_bar
 
@@ -74,15 +75,42 @@ def _auto_mask(images):
     return peak > 0.05 * np.percentile(peak, 99.5)
 
 
-def normals_session(session, *, method="biquadratic", force=False, show_progress=True, **options):
+LIGHT_MODELS = ("auto", "directional", "near")
+
+
+def light_model(lights, requested="auto"):
+    """'near' or 'directional': how the normals stage uses ``lights`` (a LightSet).
+
+    ``auto`` uses positions when lights.yaml has them and its ``light_model`` key (written by
+    the calibration, which decides from the triangulation) does not say 'directional'.
+    """
+    if requested not in LIGHT_MODELS:
+        raise StageError(f"normals: unknown light model {requested!r}; known: {', '.join(LIGHT_MODELS)}")
+    if requested == "directional":
+        return "directional"
+    if lights.positions is None:
+        if requested == "near":
+            raise StageError(f"{LIGHTS}: light model 'near' asked for, but the lights have no positions")
+        return "directional"
+    if requested == "near" or lights.extra.get("light_model", "near") != "directional":
+        return "near"
+    return "directional"
+
+
+def normals_session(session, *, method="biquadratic", force=False, show_progress=True,
+                    lights_model="auto", **options):
     """Run the normals stage on a session; returns the stage record (None when up to date).
 
     ``options`` go to :func:`pipeline.photometric.estimate_normals` (t_low, t_shadow, reject_k,
     shape_prior, ...). Lights flagged in ``lights.yaml`` are left out and listed in the record.
+    ``lights_model`` is 'auto', 'directional' or 'near' (see :func:`light_model`): near lights
+    give per-pixel directions and inverse-square falloff from the calibrated positions.
     """
     frames = _object_frames(session)
     mask_rel = session.manifest["lights"].get("object_mask")
     params = {"method": method, **{k: v for k, v in sorted(options.items()) if v is not None}}
+    if lights_model != "auto":
+        params["lights_model"] = lights_model
     inputs = _inputs(session, frames, mask_rel)
     if not force and session.stage_is_current(STAGE, params, inputs):
         return None
@@ -96,14 +124,18 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     mask = read_mask(session.path(mask_rel)) if mask_rel else _auto_mask(images)
     if mask.shape != images.shape[1:]:
         raise StageError(f"{session.path(mask_rel)}: mask size {mask.shape} differs from the frames' {images.shape[1:]}")
-    directions = lights.directions[[frames[i]["light"] for i in used]]
+    chosen = [frames[i]["light"] for i in used]
+    model = light_model(lights, lights_model)
+    directions = (PointLights(lights.positions[chosen], images.shape[1:]) if model == "near"
+                  else lights.directions[chosen])
     with progress_bar(total=int(mask.sum()), desc="normals", unit="px", disable=not show_progress) as bar:
         result = estimate_normals(images, directions, mask, method=method, valid=valid,
                                   progress=bar.update, **{k: v for k, v in options.items() if v is not None})
     outputs = _write_outputs(session, result)
     counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
     extra = {"pixels": int(result.mask.sum()), "status_counts": counts,
-             "lights_used": len(used), "lights_left_out": sorted(int(k) for k in lights.flags)}
+             "lights_used": len(used), "lights_left_out": sorted(int(k) for k in lights.flags),
+             "light_model": model}
     if result.shared_shape is not None:
         extra["shared_shape"] = [round(float(v), 6) for v in result.shared_shape]
     return session.record_stage(STAGE, params, inputs, outputs, seconds=time.perf_counter() - start, **extra)

@@ -33,6 +33,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .errors import InputError
+from .near_lights import PointLights, observations_at
 from .ps_biquadratic import alternate_shared, fit_pixel_shapes, fit_shared_shape, gauss_newton_normals, \
     half_vectors, to_paper_order, unit
 from .ps_lambert import lambert_weighted
@@ -88,6 +89,8 @@ def _check_inputs(images, lights, mask, valid):
     k, height, width = images.shape
     if k < 3:
         raise InputError(f"photometric stereo needs at least 3 images, got {k}")
+    if isinstance(lights, PointLights):
+        return images, _check_point_lights(lights, images.shape), *_check_mask_valid(images, mask, valid)
     lights = np.asarray(lights, dtype=float)
     if lights.shape[0] != k:
         raise InputError(f"{lights.shape[0]} light directions for {k} images")
@@ -101,8 +104,27 @@ def _check_inputs(images, lights, mask, valid):
         raise InputError(f"light {int(np.argmax((norms < 1e-9).any(axis=1)))} has a zero direction vector")
     lights = lights / np.linalg.norm(lights, axis=-1, keepdims=True)
     shared = lights if lights.ndim == 2 else lights.reshape(k, -1, 3).mean(axis=1)
+    _check_rank(shared)
+    return images, lights, *_check_mask_valid(images, mask, valid)
+
+
+def _check_rank(shared):
     if np.linalg.matrix_rank(shared, tol=1e-6) < 3:
         raise InputError("light directions have rank < 3 (coplanar lights): normals are not determined")
+
+
+def _check_point_lights(lights, shape):
+    k, height, width = shape
+    if len(lights) != k:
+        raise InputError(f"{len(lights)} light positions for {k} images")
+    if lights.shape != (height, width):
+        raise InputError(f"near lights are for images {lights.shape}, the images are {(height, width)}")
+    _check_rank(lights.central_directions)
+    return lights
+
+
+def _check_mask_valid(images, mask, valid):
+    k, height, width = images.shape
     if mask is None:
         # Image by image: images > 0 at once would be a (K, H, W) temporary.
         mask = np.zeros((height, width), bool)
@@ -121,7 +143,7 @@ def _check_inputs(images, lights, mask, valid):
     for i in range(k) if images.dtype.kind == "f" else ():
         if not np.isfinite(images[i][mask]).all():
             raise InputError(f"image {i} has non-finite pixel values inside the mask")
-    return images, lights, mask, valid
+    return mask, valid
 
 
 # ----------------------------------------------------------------------------- dispatcher
@@ -133,8 +155,10 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     ----------
     images : ndarray (K, H, W)
         Linear grey images, light intensities divided out.
-    lights : ndarray (K, 3) or (K, H, W, 3)
-        Unit directions toward the lights, camera frame (per pixel for near lights).
+    lights : ndarray (K, 3) or (K, H, W, 3), or PointLights
+        Unit directions toward the lights, camera frame (per pixel for near lights), or near
+        point lights (:class:`pipeline.near_lights.PointLights`), whose per-pixel directions
+        and inverse-square falloff are computed chunk by chunk (the falloff is divided out).
     mask : ndarray (H, W) bool, optional
         Pixels to process; default: pixels lit in some image.
     method : str
@@ -157,6 +181,9 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     start = time.perf_counter()
     images, lights, mask, valid = _check_inputs(images, lights, mask, valid)
     solver = _method(method)
+    near = lights if isinstance(lights, PointLights) else None
+    if near is not None:
+        lights = near.central_directions
     options = resolve_selection(lights, options)
     k = images.shape[0]
     flat_images = images.reshape(k, -1)
@@ -167,6 +194,9 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     def gather(idx):
         obs = flat_images[:, idx].T.astype(np.float64)
         obs_valid = None if flat_valid is None else flat_valid[:, idx].T
+        if near is not None:
+            obs, obs_lights = observations_at(near, obs, idx)
+            return obs, obs_valid, obs_lights
         obs_lights = lights if flat_lights is None else np.ascontiguousarray(flat_lights[:, idx].transpose(1, 0, 2))
         return obs, obs_valid, obs_lights
 

@@ -18,6 +18,9 @@ def register(sub):
                         "robust standard deviations (default 2.5)")
     parser.add_argument("--shape-prior", type=float, default=None, help="pull toward the object's shared "
                         "reflectance shape (default 0.01; 0 = independent pixels as in the paper)")
+    parser.add_argument("--lights-model", choices=("auto", "directional", "near"), default="auto",
+                        help="near: per-pixel directions and falloff from calibrated light positions; "
+                             "auto (default): near when lights.yaml has positions the calibration kept")
     parser.add_argument("--force", action="store_true", help="run even when the stage is up to date")
     parser.set_defaults(func=run)
 
@@ -32,6 +35,7 @@ def run(args):
             raise InputError(f"--t-low must be a fraction in (0, 1] or a percentage, got {args.t_low}")
     session = Session.open(args.session)
     record = normals_session(session, method=args.method, force=args.force, t_low=t_low,
+                             lights_model=args.lights_model,
                              t_shadow=args.t_shadow, reject_k=args.reject_k, shape_prior=args.shape_prior)
     if record is None:
         print(f"{session.root}: normals up to date (use --force to rerun)")
