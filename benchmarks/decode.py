@@ -16,8 +16,8 @@ import numpy as np
 
 from pipeline.decode import decode_frame, decode_session
 from pipeline.dng import write_dng, write_dng_file
-from pipeline.decode_pool import write_exr
-from pipeline.imageio import write_mask
+from pipeline.decode_pool import write_saturation
+from pipeline.imageio import write_image
 from pipeline.session import Session
 
 TARGET = 0.3  # seconds per 12 MP frame on the unbiased (mosaic) path
@@ -49,8 +49,8 @@ def frame_timings(folder, repeat):
             repeat, lambda: decode_frame(path, method=method, binning=binning))
         print(f"decode_frame {method:11s} bin {binning}: {seconds:.3f} s/frame "
               f"({seconds / TARGET:.2f} x target), output {linear.shape}")
-        write_s, _ = best_of(repeat, lambda: (write_exr(Path(folder) / "out.exr", linear),
-                                              write_mask(Path(folder) / "out_sat.png", saturated)))
+        write_s, _ = best_of(repeat, lambda: (write_image(Path(folder) / "out.exr", linear, compression="none"),
+                                              write_saturation(Path(folder) / "out_sat.png", saturated)))
         print(f"  + writing EXR (uncompressed) and mask: {write_s:.3f} s")
 
 
