@@ -22,7 +22,7 @@ from .errors import InputError
 from .imageio import read_image, read_mask, read_normal_png, write_image
 from .lightsio import read_lights
 
-__all__ = ["angular_error", "error_stats", "light_errors", "depth_error", "error_map_rgb",
+__all__ = ["angular_error", "error_stats", "light_errors", "intensity_errors", "position_errors", "depth_error", "error_map_rgb",
            "evaluate_session", "EVAL_FILE", "ERROR_MAP", "PERCENTILES", "THRESHOLDS"]
 
 EVAL_FILE = "normals/eval.yaml"
@@ -168,12 +168,50 @@ def _eval_normals(session, max_deg):
     return stats
 
 
+def intensity_errors(estimated, truth):
+    """Relative intensity errors (K, C) after one common scale fit (intensities are known up
+    to scale); summary in percent."""
+    est, true = np.asarray(estimated, float), np.asarray(truth, float)
+    if est.shape != true.shape:
+        raise InputError(f"lights: intensities {est.shape} and true intensities {true.shape} differ")
+    scale = np.median(true / est)
+    relative = np.abs(est * scale / true - 1.0) * 100.0
+    return {"mean_pct": float(relative.mean()), "max_pct": float(relative.max()),
+            "worst_light": int(np.argmax(relative.max(axis=1)))}
+
+
+def position_errors(estimated, truth):
+    """Light position errors: distance from the true position as a percentage of the light's
+    true distance from the frame origin."""
+    est, true = np.asarray(estimated, float), np.asarray(truth, float)
+    relative = np.linalg.norm(est - true, axis=1) / np.linalg.norm(true, axis=1) * 100.0
+    distance = np.abs(np.linalg.norm(est, axis=1) / np.linalg.norm(true, axis=1) - 1.0) * 100.0
+    return {"mean_pct": float(relative.mean()), "max_pct": float(relative.max()),
+            "distance_mean_pct": float(distance.mean()), "distance_max_pct": float(distance.max())}
+
+
 def _eval_lights(session):
     est_path = session.path("calibration/lights.yaml")
     if not est_path.is_file():
         return None
-    result = light_errors(read_lights(est_path).directions, read_lights(session.truth("lights")).directions)
-    result["source"] = read_lights(est_path).source
+    estimated, truth = read_lights(est_path), read_lights(session.truth("lights"))
+    if len(estimated) != len(truth):
+        raise InputError(f"{est_path}: {len(estimated)} lights, the ground truth has {len(truth)}")
+    # flagged lights carry no trustworthy direction; they are reported, not scored
+    kept = np.array([i not in estimated.flags for i in range(len(estimated))])
+    if not kept.any():
+        return {"source": estimated.source, "flagged": sorted(int(k) for k in estimated.flags)}
+    result = light_errors(estimated.directions[kept], truth.directions[kept])
+    result["worst_light"] = int(np.flatnonzero(kept)[result["worst_light"]])
+    angles = iter(result["per_light_deg"])
+    result["per_light_deg"] = [next(angles) if keep else None for keep in kept]
+    result["source"] = estimated.source
+    if not kept.all():
+        result["flagged"] = sorted(int(k) for k in estimated.flags)
+    if estimated.intensities.shape == truth.intensities.shape and np.ptp(truth.intensities) > 0:
+        result["intensities"] = intensity_errors(estimated.intensities[kept], truth.intensities[kept])
+    if estimated.positions is not None and truth.positions is not None:
+        result["positions"] = position_errors(estimated.positions[kept], truth.positions[kept])
     return result
 
 

@@ -116,3 +116,18 @@ def test_eval_cli_json(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out) == {}
     assert main(["eval", str(tmp_path / "nope")]) == 1
     assert "no such session folder" in capsys.readouterr().err
+
+
+def test_light_scores_leave_flagged_lights_out_and_score_intensities_and_positions():
+    from pipeline.evaluate import intensity_errors, position_errors
+
+    true = np.array([[1.0, 2.0, 3.0], [2.0, 2.0, 2.0]])
+    assert intensity_errors(true * 3.0, true)["max_pct"] < 1e-9
+    off = true * 3.0
+    off[1, 0] *= 1.05
+    scores = intensity_errors(off, true)
+    assert scores["worst_light"] == 1 and 4.0 < scores["max_pct"] < 6.0
+    positions = np.array([[0.0, 0.0, 100.0], [50.0, 0.0, 100.0]])
+    moved = positions + np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 0.0]])
+    result = position_errors(moved, positions)
+    assert abs(result["max_pct"] - 2.0) < 1e-9 and abs(result["distance_max_pct"] - 2.0) < 1e-9
