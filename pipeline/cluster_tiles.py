@@ -36,7 +36,8 @@ from .lightsio import read_lights_yaml
 from .near_lights import PointLights, observations_at
 from .normals_stage import LIGHTS, STAGE, _auto_mask, _inputs, _object_frames, _write_outputs, \
     light_model, load_object_stack
-from .photometric import STATUS, PhotometricResult, _method, estimate_normals, resolve_selection
+from .photometric import STATUS, PhotometricResult, _allocate, _method, _scatter, estimate_normals, \
+    resolve_selection
 from .session import Session
 
 __all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
@@ -274,29 +275,3 @@ def assemble_normals(plan, tile_paths=None):
                                   seconds=time.time() - plan.started, **extra)
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record
-
-
-# The two helpers below are pipeline.photometric's _allocate/_scatter, kept identical so that
-# tiled maps are byte-identical to estimate_normals' (a public hook there would remove the copy).
-def _allocate(shape, n_params):
-    h, w = shape
-    return {"normals": np.zeros((h, w, 3), np.float32), "status": np.zeros((h, w), np.uint8),
-            "albedo": np.zeros((h, w), np.float32), "params": np.zeros((h, w, n_params), np.float32),
-            "residual": np.zeros((h, w), np.float32), "used": np.zeros((h, w), np.uint16)}
-
-
-def _scatter(out, idx, chunk):
-    rows, cols = np.unravel_index(idx, out["status"].shape)
-    b = chunk["b"]
-    albedo = np.linalg.norm(b, axis=1)
-    ok = np.isfinite(b).all(axis=1) & (albedo > 0) & (chunk["status"] != STATUS["too_few"]) \
-        & (chunk["status"] != STATUS["shadowed"])
-    normals = np.where(ok[:, None], b / np.where(ok, albedo, 1.0)[:, None], 0.0)
-    out["normals"][rows, cols] = normals
-    out["albedo"][rows, cols] = np.where(ok, albedo, 0.0)
-    out["status"][rows, cols] = chunk["status"]
-    out["params"][rows, cols] = np.where(ok[:, None], np.nan_to_num(chunk["params"]), 0.0)
-    used = np.maximum(chunk["used"], 1)
-    rms = np.sqrt(np.maximum(chunk["rss"], 0) / used) / np.where(ok, albedo, 1.0)
-    out["residual"][rows, cols] = np.where(ok, np.nan_to_num(rms), 0.0)
-    out["used"][rows, cols] = chunk["used"]
