@@ -32,10 +32,9 @@ import numpy as np
 from .atomic import atomic_path
 from .errors import InputError, StageError
 from .imageio import read_mask
-from .lightsio import read_lights_yaml
 from .near_lights import PointLights, observations_at
 from .normals_stage import LIGHTS, STAGE, _auto_mask, _inputs, _object_frames, _write_outputs, \
-    light_model, load_object_stack
+    light_model, load_object_stack, read_stage_lights, stage_params
 from .photometric import STATUS, PhotometricResult, _allocate, _method, _scatter, estimate_normals, \
     resolve_selection
 from .session import Session
@@ -136,18 +135,12 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=No
     frames = _object_frames(session)
     mask_rel = session.manifest["lights"].get("object_mask")
     lights_model = options.pop("lights_model", "auto")
-    params = {"method": method, **dict(sorted(options.items()))}
-    if lights_model != "auto":
-        params["lights_model"] = lights_model
+    params = stage_params(method, lights_model, options)
     inputs = _inputs(session, frames, mask_rel)
     if not force and session.stage_is_current(STAGE, params, inputs):
         return None
     started = time.time()
-    lights = read_lights_yaml(session.path(LIGHTS))
-    indices = [f["light"] for f in frames]
-    if max(indices) >= len(lights):
-        raise StageError(f"{session.path(LIGHTS)}: {len(lights)} lights, but frame light index {max(indices)} is used")
-    used = [f for f in frames if f["light"] not in lights.flags]
+    lights, used = read_stage_lights(session, frames)
     folder = session.root / SCRATCH
     shutil.rmtree(folder, ignore_errors=True)  # tiles of an older plan must not be reused
     folder.mkdir(parents=True)

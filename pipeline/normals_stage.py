@@ -97,6 +97,24 @@ def light_model(lights, requested="auto"):
     return "directional"
 
 
+def stage_params(method, lights_model, options):
+    """The stage record's parameters: method, the options given (not None), the light model
+    when not 'auto' (so records of earlier versions stay current)."""
+    params = {"method": method, **{k: v for k, v in sorted(options.items()) if v is not None}}
+    if lights_model != "auto":
+        params["lights_model"] = lights_model
+    return params
+
+
+def read_stage_lights(session, frames):
+    """The session's lights and the object frames whose light is not flagged."""
+    lights = read_lights_yaml(session.path(LIGHTS))
+    top = max(f["light"] for f in frames)
+    if top >= len(lights):
+        raise StageError(f"{session.path(LIGHTS)}: {len(lights)} lights, but frame light index {top} is used")
+    return lights, [f for f in frames if f["light"] not in lights.flags]
+
+
 def normals_session(session, *, method="biquadratic", force=False, show_progress=True,
                     lights_model="auto", **options):
     """Run the normals stage on a session; returns the stage record (None when up to date).
@@ -108,23 +126,17 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     """
     frames = _object_frames(session)
     mask_rel = session.manifest["lights"].get("object_mask")
-    params = {"method": method, **{k: v for k, v in sorted(options.items()) if v is not None}}
-    if lights_model != "auto":
-        params["lights_model"] = lights_model
+    params = stage_params(method, lights_model, options)
     inputs = _inputs(session, frames, mask_rel)
     if not force and session.stage_is_current(STAGE, params, inputs):
         return None
     start = time.perf_counter()
-    lights = read_lights_yaml(session.path(LIGHTS))
-    indices = [f["light"] for f in frames]
-    if max(indices) >= len(lights):
-        raise StageError(f"{session.path(LIGHTS)}: {len(lights)} lights, but frame light index {max(indices)} is used")
-    used = [i for i, f in enumerate(frames) if f["light"] not in lights.flags]
-    images, valid = load_object_stack(session, [frames[i] for i in used], lights)
+    lights, used = read_stage_lights(session, frames)
+    images, valid = load_object_stack(session, used, lights)
     mask = read_mask(session.path(mask_rel)) if mask_rel else _auto_mask(images)
     if mask.shape != images.shape[1:]:
         raise StageError(f"{session.path(mask_rel)}: mask size {mask.shape} differs from the frames' {images.shape[1:]}")
-    chosen = [frames[i]["light"] for i in used]
+    chosen = [f["light"] for f in used]
     model = light_model(lights, lights_model)
     directions = (PointLights(lights.positions[chosen], images.shape[1:]) if model == "near"
                   else lights.directions[chosen])
