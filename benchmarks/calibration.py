@@ -1,7 +1,9 @@
-"""Calibration benchmark: ``python benchmarks/calibration.py ../shared/data/psbox``.
+"""Calibration benchmark: ``python benchmarks/calibration.py [../shared/data/psbox]``.
 
-Prints, per PSBox probe, per-light angles to the probe's own published directions and to the
-averaged ones (median, max, seconds), the two probes' mutual agreement, and a simulated section.
+Prints, per PSBox probe, the angles to the probe's own published directions (median vs the
+0.5 deg target, found circle, no clicks) and the two probes' agreement; then, on the simulated
+rig's sphere scene (360 x 480, 32 lights), direction median/max vs 0.2/0.5 deg, intensity error vs
+1 % and, for near lights, the triangulated distance error vs 2 %.
 """
 
 import sys
@@ -12,49 +14,65 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from calibration.intensities import target_intensities  # noqa: E402
+from calibration.positions import frame_offset  # noqa: E402
 from calibration.sphere import calibrate_sphere  # noqa: E402
-from tests.calibration.render import render_chrome  # noqa: E402
+from tests.calibration.sim_session import linear_frames, sphere_scene  # noqa: E402
 
 
 def angles(a, b):
     return np.degrees(np.arccos(np.clip((a * b).sum(1), -1, 1)))
 
 
-def probe(folder):
-    frames = np.stack([cv2.imread(str(folder / f"Image_{i:02d}.JPG"))[:, :, ::-1] for i in range(1, 13)])
-    start = time.perf_counter()
-    result = calibrate_sphere(frames.astype(np.float32) / 255)
-    return result, time.perf_counter() - start
-
-
-def main(root):
-    root = Path(root)
-    mean = np.loadtxt(root / "light_directions.txt").T
+def psbox(root):
     dirs = {}
     for name in ("LightProbe-1", "LightProbe-2"):
-        result, secs = probe(root / name)
-        own = np.loadtxt(root / name / "light_directions.txt").T
-        h = cv2.imread(str(root / name / "Image_01.JPG")).shape[0]
-        xc, yc, r = np.loadtxt(root / name / "circle_data.txt")
+        folder = root / name
+        frames = np.stack([cv2.imread(str(folder / f"Image_{i:02d}.JPG"))[:, :, ::-1] for i in range(1, 13)])
+        start = time.perf_counter()
+        result = calibrate_sphere(frames.astype(np.float32) / 255)
+        secs = time.perf_counter() - start
+        own = np.loadtxt(folder / "light_directions.txt").T
+        xc, yc, r = np.loadtxt(folder / "circle_data.txt")
         c = result.circle
-        print(f"{name}: circle ({c.cx:.2f}, {c.cy:.2f}, {c.r:.2f}) vs published ({xc - 1:.2f}, {h - yc:.2f}, {r:.2f}); "
-              f"{secs:.2f} s; flags {result.flags}")
-        for label, ref in (("own", own), ("averaged", mean)):
-            a = angles(result.directions, ref)
-            print(f"  vs {label:8s} per light {np.round(a, 2).tolist()}  median {np.median(a):.3f}  max {a.max():.3f} deg")
+        a = angles(result.directions, own)
+        print(f"psbox {name}: median {np.median(a):.3f} deg (target 0.5, ratio {np.median(a) / 0.5:.2f}), "
+              f"max {a.max():.3f}; circle ({c.cx:.2f}, {c.cy:.2f}, {c.r:.2f}) vs published "
+              f"({xc - 1:.2f}, {frames.shape[1] - yc:.2f}, {r:.2f}); {secs:.2f} s; flags {result.flags}")
         dirs[name] = result.directions
     a = angles(dirs["LightProbe-1"], dirs["LightProbe-2"])
-    p = angles(np.loadtxt(root / "LightProbe-1/light_directions.txt").T, np.loadtxt(root / "LightProbe-2/light_directions.txt").T)
-    print(f"probe-1 vs probe-2: median {np.median(a):.3f} max {a.max():.3f} deg (published files: median {np.median(p):.3f})")
-    rng = np.random.default_rng(3)
-    theta, phi = np.radians(rng.uniform(5, 50, 16)), rng.uniform(0, 2 * np.pi, 16)
-    truth = np.c_[np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)]
-    start = time.perf_counter()
-    result = calibrate_sphere(render_chrome(truth))
-    a = angles(result.directions, truth)
-    print(f"simulated (own render, 16 lights): median {np.median(a):.3f} max {a.max():.3f} deg, "
-          f"{time.perf_counter() - start:.2f} s")
+    p = angles(np.loadtxt(root / "LightProbe-1/light_directions.txt").T,
+               np.loadtxt(root / "LightProbe-2/light_directions.txt").T)
+    print(f"psbox probe agreement: median {np.median(a):.3f} max {a.max():.3f} deg "
+          f"(published files agree to median {np.median(p):.3f})")
+
+
+def simulated(count=32):
+    for distance in (None, 600.0, 1500.0):
+        scene = sphere_scene(count, distance=distance, shape=(360, 480))
+        images, sat = linear_frames(scene)
+        start = time.perf_counter()
+        result = calibrate_sphere(images, saturation=sat)
+        intens = target_intensities(images, result.directions, circle=result.targets[0].params, saturation=sat,
+                                    positions=result.positions, offset=frame_offset(images.shape[1:3]))
+        secs = time.perf_counter() - start
+        a = angles(result.directions, scene.directions)
+        i_err = np.abs(intens / (scene.intensities / scene.intensities.mean()) - 1).max() * 100
+        label = "directional" if distance is None else f"near {distance:g} px"
+        line = (f"sim {label}: {len(result.circles)} chrome + {len(result.targets)} matte found, model "
+                f"{'near' if result.near else 'directional'}; directions median {np.median(a):.3f} "
+                f"(target 0.2, ratio {np.median(a) / 0.2:.2f}) max {a.max():.3f} (target 0.5, ratio "
+                f"{a.max() / 0.5:.2f}) deg; intensities max error {i_err:.2f} % (target 1)")
+        if distance is not None and result.triangulated is not None:
+            d = np.abs(np.linalg.norm(result.triangulated, axis=1) / distance - 1).max() * 100
+            line += f"; distance max error {d:.2f} % (target 2)"
+        print(line + f"; {secs:.2f} s")
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "../shared/data/psbox")
+    root = Path(sys.argv[1] if len(sys.argv) > 1 else Path(__file__).resolve().parents[2] / "shared/data/psbox")
+    if root.is_dir():
+        psbox(root)
+    else:
+        print(f"{root}: psbox data missing, skipped")
+    simulated()

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy import ndimage, optimize
+from scipy import ndimage, optimize, special
 
 from pipeline.errors import InputError
 
@@ -123,13 +123,29 @@ def _fit_sigma(x, y, c, w):
     return np.sqrt(np.clip(np.diag(cov), 0, None))
 
 
-def _radial_edges(image, c, band, *, rays=720, level=0.85):
+def _outer_crossing(prof, off, lo, hi, inner, level):
+    """Offset (rays,) of the outermost crossing of ``level`` of the way from ``lo`` (inside) to
+    ``hi`` (outside) within ``inner`` of the circle, and whether one was found."""
+    step = off[1] - off[0]
+    target = lo + level * (hi - lo)
+    inside = (np.sign(hi - lo)[:, None] * (prof - target[:, None]) <= 0) & (np.abs(off) < inner)
+    found = inside.any(axis=1)
+    idx = np.clip(inside.shape[1] - 1 - np.argmax(inside[:, ::-1], axis=1), 0, len(off) - 2)
+    rows = np.arange(len(prof))
+    p0, p1 = prof[rows, idx], prof[rows, idx + 1]
+    t = np.clip((target - p0) / np.where(p1 == p0, 1e-12, p1 - p0), 0, 1)
+    return off[idx] + t * step, found & (idx < len(off) - 2)
+
+
+def _radial_edges(image, c, band, *, rays=720, levels=(0.7, 0.85)):
     """Sub-pixel outline points along rays from the centre.
 
-    On each ray the profile is levelled between the inside (median over ``band`` pixels inside)
-    and the background outside; the edge is the outermost crossing of ``level`` of the way
-    toward the background. A chrome sphere's limb mirrors the background behind it, so its
-    true outline is the outer end of the soft transition, not its middle.
+    On each ray the profile is levelled between the inside (median over ``band`` pixels
+    inside) and the background outside. A chrome sphere's limb mirrors the background behind
+    it, so the transition is soft inside and sharp only at its outer end: the outline is where
+    that outer shoulder would reach half way, found from the outermost crossings of two levels
+    as a blurred step (erf) would have them: x_half = x_hi - z_hi (x_hi - x_lo) / (z_hi - z_lo),
+    z the normal quantiles of the levels. On a plain blurred step this is the 50 % crossing.
     """
     inner, outer = band
     step = 0.25
@@ -140,16 +156,12 @@ def _radial_edges(image, c, band, *, rays=720, level=0.85):
     prof = ndimage.map_coordinates(image, [ys, xs], order=1, mode="nearest")
     lo = np.median(prof[:, off <= -inner], axis=1)
     hi = np.median(prof[:, off >= inner], axis=1)
-    target = lo + level * (hi - lo)
-    inside = (np.sign(hi - lo)[:, None] * (prof - target[:, None]) <= 0) & (np.abs(off) < inner)
-    found = inside.any(axis=1)
-    idx = np.clip(inside.shape[1] - 1 - np.argmax(inside[:, ::-1], axis=1), 0, len(off) - 2)
-    rows = np.arange(rays)
-    p0, p1 = prof[rows, idx], prof[rows, idx + 1]
-    t = np.clip((target - p0) / np.where(p1 == p0, 1e-12, p1 - p0), 0, 1)
-    radius = c[2] + off[idx] + t * step
-    ok = found & (idx < len(off) - 2)
-    return c[0] + np.cos(theta) * radius, c[1] + np.sin(theta) * radius, ok, np.abs(hi - lo)
+    x_lo, ok_lo = _outer_crossing(prof, off, lo, hi, inner, levels[0])
+    x_hi, ok_hi = _outer_crossing(prof, off, lo, hi, inner, levels[1])
+    z_lo, z_hi = special.ndtri(levels[0]), special.ndtri(levels[1])
+    width = np.clip(x_hi - x_lo, 0, None)
+    radius = c[2] + x_hi - z_hi * width / (z_hi - z_lo)
+    return c[0] + np.cos(theta) * radius, c[1] + np.sin(theta) * radius, ok_lo & ok_hi, np.abs(hi - lo)
 
 
 def refine_circle(image, circle, *, passes=3):
@@ -176,8 +188,19 @@ def refine_circle(image, circle, *, passes=3):
     return Circle(c[0], c[1], c[2], rms=rms, inliers=float(inl.sum()) / 720, sigma=sigma, method="fit")
 
 
+def _hough_image(image):
+    """Log-compressed copy of ``image`` for the Hough seed: a dark chrome ball beside a bright
+    matte one (or a clipped highlight) must still show its outline."""
+    image = np.asarray(image, np.float32)
+    floor = 1e-3 * max(float(np.percentile(image, 99.5)), 1e-12)
+    return np.log(np.maximum(image - float(image.min()), 0) + floor).astype(np.float32)
+
+
 def _hough(image, count):
-    """Rough circles (cx, cy, r) by a Hough transform on a downscaled image, strongest first."""
+    """Rough circles (cx, cy, r) by a Hough transform on a downscaled image, strongest first.
+
+    ``count`` None asks for every candidate the transform offers (at most 8).
+    """
     h, w = image.shape
     s = max(1, int(round(max(h, w) / 400)))
     small = cv2.resize(image, (w // s, h // s), interpolation=cv2.INTER_AREA) if s > 1 else image
@@ -186,42 +209,77 @@ def _hough(image, count):
         return []
     u8 = cv2.GaussianBlur((np.clip((small - small.min()) / top, 0, 1) * 255).astype(np.uint8), (0, 0), 1.5)
     side = min(u8.shape)
+    want = count or 8
+    found = None
     for votes in (30, 20, 14):
         found = cv2.HoughCircles(u8, cv2.HOUGH_GRADIENT, dp=1, minDist=side / 4, param1=60,
                                  param2=votes, minRadius=max(4, side // 12), maxRadius=side // 2)
-        if found is not None and len(found[0]) >= count:
-            return [tuple(c * s) for c in found[0][:count]]
-    return [] if found is None else [tuple(c * s) for c in found[0][:count]]
+        if found is not None and len(found[0]) >= (count or 1):
+            break
+    return [] if found is None else [tuple(c * s) for c in found[0][:want]]
 
 
-def find_spheres(image, count=1, *, min_inliers=0.4, max_rms=None):
-    """Find ``count`` spheres in a grey image (H, W) with no clicks.
+def _credible(circle, shape, min_inliers, max_rms):
+    limit = max_rms if max_rms is not None else max(1.0, 0.02 * circle.r)
+    return circle.inliers >= min_inliers and circle.rms <= limit and _inside(circle, shape)
 
-    Returns a list of :class:`Circle` ordered left to right. Raises :class:`SphereNotFound`
-    when fewer than ``count`` credible outlines are found (a credible one has at least
-    ``min_inliers`` of its outline supporting it and an RMS edge distance under
-    ``max_rms`` pixels, 2 % of the radius by default).
+
+def _overlaps(circle, others):
+    return any(np.hypot(circle.cx - o.cx, circle.cy - o.cy) < 0.9 * (circle.r + o.r) for o in others)
+
+
+def find_spheres(image, count=None, *, min_inliers=0.4, max_rms=None):
+    """Find the spheres in a grey image (H, W) with no clicks.
+
+    Hough seeds on a log-compressed image are refined on the image itself
+    (:func:`refine_circle`); a refined outline is credible when at least ``min_inliers`` of it
+    supports the circle with an RMS edge distance under ``max_rms`` pixels (2 % of the radius
+    by default). Overlapping candidates keep the best supported one.
+
+    Parameters
+    ----------
+    image : ndarray (H, W)
+    count : int or None
+        How many spheres to expect; None returns every credible one (at least one).
+
+    Returns
+    -------
+    list of Circle, left to right (then top to bottom).
+
+    Raises
+    ------
+    SphereNotFound
+        When fewer than ``count`` (or no) credible outlines are found.
     """
     image = np.asarray(image, np.float32)
     if image.ndim != 2:
         raise InputError(f"sphere image must be (H, W), got shape {image.shape}")
-    circles = []
-    for seed in _hough(image, count):
+    found = []
+    seeds = _hough(image, None) + _hough(_hough_image(image), None)
+    for seed in seeds:
+        if any(np.hypot(seed[0] - c.cx, seed[1] - c.cy) < 0.1 * c.r and abs(seed[2] - c.r) < 0.1 * c.r
+               for c in found):
+            continue
         try:
             circle = refine_circle(image, seed)
         except SphereNotFound:
             continue
-        limit = max_rms if max_rms is not None else max(1.0, 0.02 * circle.r)
-        if circle.inliers >= min_inliers and circle.rms <= limit and _inside(circle, image.shape):
+        if _credible(circle, image.shape, min_inliers, max_rms):
+            found.append(circle)
+    circles = []
+    for circle in sorted(found, key=lambda c: (-c.inliers, c.rms / c.r)):
+        if not _overlaps(circle, circles):
             circles.append(circle)
-    if len(circles) < count:
-        raise SphereNotFound(f"found {len(circles)} sphere outline(s), expected {count}; "
+    if count is not None:
+        circles = circles[:count]
+    if len(circles) < (count or 1):
+        raise SphereNotFound(f"found {len(circles)} sphere outline(s), expected {count or 'one or more'}; "
                              "give the circle with --circle CX,CY,R or a --sphere-mask")
-    return sorted(circles, key=lambda c: c.cx)
+    return sorted(circles, key=lambda c: (round(c.cx / max(c.r, 1)), c.cy))
 
 
 def find_sphere(image, **options):
-    """The single sphere in a grey image (H, W); see :func:`find_spheres`."""
+    """The single best-supported sphere in a grey image (H, W); see :func:`find_spheres`."""
     return find_spheres(image, 1, **options)[0]
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from pipeline.errors import InputError
 
-__all__ = ["sphere_points", "mirror", "pixel_rays", "check_K"]
+__all__ = ["sphere_points", "mirror", "pixel_rays", "check_K", "sphere_centre"]
 
 
 def check_K(K):
@@ -30,8 +30,9 @@ def pixel_rays(K, x, y):
     return ray / np.linalg.norm(ray, axis=-1, keepdims=True)
 
 
-def _sphere_centre(circle, K):
-    """Centre (3,) of a unit sphere whose image outline is ``circle`` under K."""
+def sphere_centre(circle, K):
+    """Centre (3,) of a unit sphere whose image outline is ``circle`` (cx, cy, r) under K (3, 3),
+    camera frame."""
     cx, cy, r = circle
     axis = pixel_rays(K, cx, cy)
     edge = pixel_rays(K, cx + r, cy)
@@ -66,7 +67,7 @@ def sphere_points(x, y, circle, K=None):
         views = np.broadcast_to([0.0, 0.0, 1.0], normals.shape).copy()
         points = np.array([cx, -cy, 0.0]) + r * normals
         return normals, views, points
-    centre = _sphere_centre((cx, cy, r), K)
+    centre = sphere_centre((cx, cy, r), K)
     ray = pixel_rays(K, x, y)
     b = ray @ centre
     disc = b ** 2 - (centre @ centre - 1.0)

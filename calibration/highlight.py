@@ -14,6 +14,7 @@ __all__ = ["Blob", "highlight_blob", "saturation_level", "HALF", "RIM", "MAX_SAT
 HALF = 0.5            # blob = pixels above this fraction of the frame's highlight peak
 RIM = 0.96            # highlight beyond this fraction of the radius: normal too oblique to trust
 MAX_SATURATED = 0.015 # saturated blob larger than this fraction of the disc: overexposed
+SHOULDER = 0.5       # clipped highlights: weights ramp from this fraction of the clip level
 SECOND = 0.25         # a second blob this large (relative to the main one) means two highlights
 
 
@@ -88,7 +89,7 @@ def highlight_blob(frame, background, disc, saturated, *, radius, centre):
     rows, cols = np.nonzero(labels == main)
     weights = signal[rows, cols] - HALF * peak
     if saturated[rows, cols].any():
-        rows, cols, weights = _saturated_core(saturated & disc, rows, cols)
+        rows, cols, weights = _clipped_top(signal, saturated & disc, rows, cols)
     total = weights.sum()
     x = float((weights * cols).sum() / total)
     y = float((weights * rows).sum() / total)
@@ -101,19 +102,35 @@ def highlight_blob(frame, background, disc, saturated, *, radius, centre):
     return blob
 
 
-def _saturated_core(saturated, rows, cols):
-    """The largest saturated patch of the blob, equally weighted: clipped pixels carry no
-    intensity information, and the unclipped shoulder around a clipped core is mostly flare."""
+def _clipped_top(signal, saturated, rows, cols):
+    """Weights for a highlight with a clipped core.
+
+    The largest clipped patch of the blob, grown by two pixels, weighted by how far each
+    pixel reaches up a ramp from ``SHOULDER`` of the clip level to the clip level. The ramp's
+    top is a level set of the (symmetric) lobe, so its centroid is unbiased, and the partial
+    edge pixels make it sub-pixel where counting clipped pixels alone quantises it. Flare
+    spikes of real lenses are separate clipped patches or lie lower, and stay out.
+    """
     inside = np.zeros_like(saturated)
     inside[rows, cols] = True
     labels, count = ndimage.label(saturated & inside)
     sizes = ndimage.sum_labels(np.ones(saturated.shape), labels, index=np.arange(1, count + 1))
-    r, c = np.nonzero(labels == 1 + int(np.argmax(sizes)))
-    return r, c, np.ones(len(r))
+    core = labels == 1 + int(np.argmax(sizes))
+    region = ndimage.binary_dilation(core, iterations=2) & inside
+    r, c = np.nonzero(region)
+    top = float(np.median(signal[core]))
+    low = SHOULDER * top
+    weights = np.clip((signal[r, c] - low) / max(top - low, 1e-12), 0, 1)
+    keep = weights > 0
+    return r[keep], c[keep], weights[keep]
 
 
 def _judge(blob, sizes, main, radius, centre):
-    """The reason a found blob is doubtful, or None."""
+    """The reason a found blob is doubtful, or None (the rim first: a grazing highlight often
+    breaks into pieces, and its obliqueness is the real cause)."""
+    dist = np.hypot(blob.cols - centre[0], blob.rows - centre[1])
+    if np.hypot(blob.x - centre[0], blob.y - centre[1]) > RIM * radius or dist.max() > 0.995 * radius:
+        return "highlight on the rim of the sphere (normal too oblique)"
     main_size = sizes[main - 1]
     others = np.delete(sizes, main - 1)
     if others.size and others.max() >= max(SECOND * main_size, 4):
@@ -121,7 +138,4 @@ def _judge(blob, sizes, main, radius, centre):
     disc_area = np.pi * radius ** 2
     if blob.saturated > MAX_SATURATED * disc_area:
         return f"saturated blob of {blob.saturated} px: overexposed, highlight centre not reliable"
-    dist = np.hypot(blob.cols - centre[0], blob.rows - centre[1])
-    if np.hypot(blob.x - centre[0], blob.y - centre[1]) > RIM * radius or dist.max() > 0.995 * radius:
-        return "highlight on the rim of the sphere (normal too oblique)"
     return None

@@ -5,7 +5,7 @@ import numpy as np
 
 from pipeline.imageio import write_image
 
-__all__ = ["overlay", "write_overlay"]
+__all__ = ["overlay", "write_overlay", "write_sphere_overlays"]
 
 GREEN, RED, YELLOW = (0, 255, 0), (255, 40, 40), (255, 220, 0)
 
@@ -34,7 +34,8 @@ def overlay(image, circles, highlights, flags):
                    int(round(circle.r * sub)), GREEN, scale, cv2.LINE_AA, 4)
         cv2.drawMarker(canvas, (int(round(circle.cx)), int(round(circle.cy))), GREEN, cv2.MARKER_CROSS,
                        6 * scale, scale)
-    for spots in np.asarray(highlights).reshape(-1, np.shape(highlights)[-2], 2):
+    highlights = np.asarray(highlights, float)
+    for spots in highlights.reshape(-1, highlights.shape[-2], 2) if highlights.size else []:
         for k, (x, y) in enumerate(spots):
             if not np.isfinite(x):
                 continue
@@ -49,3 +50,24 @@ def overlay(image, circles, highlights, flags):
 def write_overlay(path, image, circles, highlights, flags):
     """Write :func:`overlay` as an 8-bit PNG (atomic)."""
     write_image(path, overlay(image, circles, highlights, flags), bits=8)
+
+
+def _crop(image, circle, margin=0.15):
+    """Window (row0, col0, view) around a circle with ``margin`` of its radius spare."""
+    h, w = image.shape[:2]
+    pad = circle.r * (1 + margin)
+    r0, r1 = max(0, int(circle.cy - pad)), min(h, int(np.ceil(circle.cy + pad)) + 1)
+    c0, c1 = max(0, int(circle.cx - pad)), min(w, int(np.ceil(circle.cx + pad)) + 1)
+    return r0, c0, image[r0:r1, c0:c1]
+
+
+def write_sphere_overlays(paths, image, circles, highlights, flags):
+    """One close-up overlay per sphere: ``paths[s]`` shows ``circles[s]`` and, when given,
+    ``highlights[s]`` (K, 2) pixels (None for a matte target). Circles are shifted copies, so
+    the caller's stay untouched."""
+    from dataclasses import replace
+    for path, circle, spots in zip(paths, circles, highlights):
+        r0, c0, view = _crop(image, circle)
+        local = replace(circle, cx=circle.cx - c0, cy=circle.cy - r0)
+        pts = np.zeros((1, 0, 2)) if spots is None else (np.asarray(spots) - [c0, r0])[None]
+        write_overlay(path, view, [local], pts, flags)

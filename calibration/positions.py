@@ -9,7 +9,7 @@ import numpy as np
 
 from pipeline.errors import InputError
 
-__all__ = ["triangulate", "light_directions_at"]
+__all__ = ["triangulate", "light_directions_at", "frame_offset", "near_decision"]
 
 
 def triangulate(starts, rays):
@@ -81,3 +81,55 @@ def light_directions_at(positions, points):
     axes = tuple(range(1, inv.ndim))
     falloff = inv / np.nanmean(inv, axis=axes, keepdims=True)
     return directions, falloff
+
+
+def frame_offset(shape):
+    """Offset (3,) from :func:`calibration.geometry.sphere_points`' orthographic frame (x =
+    column, y = -row) to the session frame with the origin at the image centre: subtract it.
+
+    shape : (H, W) of the frames.
+    """
+    h, w = shape
+    return np.array([(w - 1) / 2.0, -(h - 1) / 2.0, 0.0])
+
+
+def near_decision(positions, starts, rays, parallax_deg, uncertainty_deg, baseline, *,
+                  max_baselines=50.0, min_parallax_deg=0.5):
+    """Decide whether the lights are near point lights or directional.
+
+    A light's triangulation is well conditioned when its rays from the spheres converge ahead
+    of every sphere, with a parallax (angle between the spheres' rays) well above the
+    direction noise (``max(min_parallax_deg, 4 * uncertainty)``) and a distance under
+    ``max_baselines`` times the sphere baseline. The lights are near when most calibrated
+    lights are well conditioned.
+
+    Parameters
+    ----------
+    positions : ndarray (K, 3)
+    starts, rays : ndarray (S, K, 3)
+        Highlight points and unit reflected rays per sphere.
+    parallax_deg, uncertainty_deg : ndarray (K,)
+    baseline : float
+        Largest distance between sphere centres, same unit as the positions.
+
+    Returns
+    -------
+    near : bool
+    conditioned : ndarray (K,) bool
+    reason : str
+    """
+    positions = np.asarray(positions, float)
+    ahead = ((positions[None] - starts) * rays).sum(-1) > 0
+    dist = np.linalg.norm(positions - starts.mean(0), axis=-1)
+    with np.errstate(invalid="ignore"):
+        conditioned = (np.isfinite(positions).all(-1) & ahead.all(0)
+                       & (parallax_deg > np.maximum(min_parallax_deg, 4 * np.nan_to_num(uncertainty_deg)))
+                       & (dist < max_baselines * baseline))
+    usable = np.isfinite(parallax_deg)
+    share = conditioned[usable].mean() if usable.any() else 0.0
+    near = bool(share > 0.5)
+    median = float(np.nanmedian(np.where(conditioned, dist, np.nan))) if conditioned.any() else float("nan")
+    reason = (f"{int(conditioned.sum())} of {int(usable.sum())} lights triangulate well "
+              f"(parallax > max({min_parallax_deg}, 4 sigma) deg, ahead of both spheres, distance < "
+              f"{max_baselines:g} baselines of {baseline:.1f}); median distance {median:.1f}")
+    return near, conditioned, reason

@@ -8,13 +8,15 @@
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 from pipeline.errors import InputError, PsrigError
 
-from .circle import Circle, circle_from_mask, find_spheres, sphere_image
-from .geometry import check_K, mirror, sphere_points
+from .circle import Circle, SphereNotFound, circle_from_mask, find_spheres, sphere_image
+from .geometry import check_K, mirror, sphere_centre, sphere_points
 from .highlight import highlight_blob, saturation_level
-from .positions import triangulate
+from .kinds import sphere_kind
+from .positions import frame_offset, near_decision, triangulate
 
 __all__ = ["calibrate_lights", "calibrate_sphere", "SphereCalibration", "CalibrationError"]
 
@@ -30,23 +32,41 @@ class SphereCalibration:
     Attributes
     ----------
     directions : ndarray (K, 3)
-        Unit light directions, camera frame (mean over the spheres that saw the light); rows of
-        flagged lights hold the best guess, check ``flags``.
+        Unit light directions, camera frame: the mean over the chrome spheres that saw the
+        light under the directional model, or toward the triangulated position (from the frame
+        origin) when the lights are near. Rows of flagged lights hold the best guess (NaN when
+        none): check ``flags``.
     circles : list of Circle
-        One per sphere, left to right.
+        The chrome spheres, left to right.
     highlights : ndarray (S, K, 2)
-        Sub-pixel highlight centres (x, y) per sphere and light; NaN when none.
+        Sub-pixel highlight centres (x, y) per chrome sphere and light; NaN when none.
     per_sphere : ndarray (S, K, 3)
-        Directions from each sphere.
+        Directions from each chrome sphere (directional model).
     flags : dict
-        {light index: reason}.
+        {light index: reason} for lights no chrome sphere calibrated well (or, for near
+        lights, that could not be triangulated).
+    sphere_flags : list of dict
+        Per chrome sphere, {light index: reason}.
     uncertainty_deg : ndarray (K,)
         1-sigma angular uncertainty from the highlight and circle errors, degrees.
     residual_deg : ndarray (K,)
-        Disagreement between spheres (two or more) or the uncertainty (one sphere), degrees.
+        Angle between the chrome spheres' directions (two or more; the parallax of a near
+        light), else the uncertainty, degrees.
+    targets : list of Circle
+        Matte spheres in view (intensity targets).
+    kinds : list of dict
+        Every sphere considered: circle, kind ('chrome'/'matte') and the lit share it was
+        classified on.
     positions : ndarray (K, 3) or None
-        Triangulated light positions (two or more spheres), frame of
-        :func:`calibration.geometry.sphere_points`.
+        Triangulated light positions when the lights are near: orthographic, pixels with the
+        origin at the image centre (x right, y up, z = 0 on the sphere centres' plane);
+        perspective, camera frame in sphere radii.
+    triangulated : ndarray (K, 3) or None
+        The raw triangulation (two or more chrome spheres), whatever the decision.
+    position_error : ndarray (K,) or None
+        RMS miss distance of the rays to the triangulated point, same unit.
+    near : bool
+    near_reason : str
     method : str
     """
 
@@ -55,16 +75,27 @@ class SphereCalibration:
     highlights: np.ndarray
     per_sphere: np.ndarray
     flags: dict = field(default_factory=dict)
+    sphere_flags: list = field(default_factory=list)
     uncertainty_deg: np.ndarray = None
     residual_deg: np.ndarray = None
+    targets: list = field(default_factory=list)
+    kinds: list = field(default_factory=list)
     positions: np.ndarray = None
+    triangulated: np.ndarray = None
     position_error: np.ndarray = None
+    near: bool = False
+    near_reason: str = "one chrome sphere: directional model"
     method: str = ""
 
     @property
     def circle(self):
-        """The first (leftmost) sphere's circle."""
+        """The first (leftmost) chrome sphere's circle."""
         return self.circles[0]
+
+    @property
+    def distances(self):
+        """Distance of each triangulated light from the frame origin (K,), or None."""
+        return None if self.triangulated is None else np.linalg.norm(self.triangulated, axis=1)
 
 
 def _grey(images):
@@ -76,22 +107,38 @@ def _grey(images):
     raise InputError(f"sphere images must be (K, H, W) or (K, H, W, C), got shape {images.shape}")
 
 
+def _given(circle):
+    """A circle or a list of circles -> list of Circle."""
+    single = isinstance(circle, Circle) or np.ndim(circle) == 1
+    out = []
+    for c in ([circle] if single else list(circle)):
+        c = c if isinstance(c, Circle) else Circle(*map(float, c), method="given")
+        if not (c.r > 0 and np.isfinite(c.params).all()):
+            raise InputError(f"circle: radius must be positive and finite, got {c.params.tolist()}")
+        out.append(c)
+    return out
+
+
+def _mask_regions(mask, shape):
+    """Sphere mask (H, W): bool (each connected blob one sphere) or integer labels."""
+    mask = np.asarray(mask)
+    if mask.shape != shape:
+        raise InputError(f"sphere mask: shape {mask.shape} does not match the frames {shape}")
+    values = np.unique(mask[mask > 0])
+    if mask.dtype != bool and len(values) > 1:
+        return [mask == v for v in values]
+    labels, count = ndimage.label(mask > 0)
+    regions = [labels == i for i in range(1, count + 1)]
+    return [r for r in regions if r.sum() >= 20] or [mask > 0]
+
+
 def _circles(grey, circle, mask, spheres):
+    """[(Circle, region mask or None)] of every sphere to consider."""
     if circle is not None:
-        given = [circle] if np.ndim(circle[0]) == 0 and not isinstance(circle[0], Circle) else list(circle)
-        out = []
-        for c in given:
-            c = c if isinstance(c, Circle) else Circle(*map(float, c), method="given")
-            if not (c.r > 0 and np.isfinite(c.params).all()):
-                raise InputError(f"circle: radius must be positive and finite, got {c.params.tolist()}")
-            out.append(c)
-        return out
+        return [(c, None) for c in _given(circle)]
     if mask is not None:
-        mask = np.asarray(mask, bool)
-        if mask.shape != grey.shape[1:]:
-            raise InputError(f"sphere mask: shape {mask.shape} does not match the frames {grey.shape[1:]}")
-        return [circle_from_mask(mask)]
-    return find_spheres(sphere_image(grey), spheres)
+        return [(circle_from_mask(r), r) for r in _mask_regions(mask, grey.shape[1:])]
+    return [(c, None) for c in find_spheres(sphere_image(grey), spheres)]
 
 
 def _one_sphere(grey, peak, sat, circ, mask, K):
@@ -140,7 +187,7 @@ def _uncertainty(blob, circ, K, direction):
 
 
 def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None, spheres=None):
-    """Light directions (and positions with two spheres) from chrome-sphere frames.
+    """Light directions (and positions with two chrome spheres) from sphere frames.
 
     Parameters
     ----------
@@ -148,61 +195,109 @@ def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None,
         One frame per light, float linear (gamma-encoded data works too).
     circle : (cx, cy, r), list of them, or None
         Sphere outline(s) in pixels (0-based, x = column, y = row downward); found when None.
-    mask : ndarray (H, W) bool or None
-        Pixels of the (single) sphere; used to get the circle and to limit the search.
+    mask : ndarray (H, W) bool or int or None
+        Sphere pixels (one connected blob, or one label, per sphere); gives the circles and
+        limits the highlight search.
     saturation : ndarray (K, H, W) bool or None
         Saturated pixels per frame; guessed from the data's clip level when None.
     K : ndarray (3, 3) or None
         Intrinsics for per-pixel view rays (perspective); orthographic when None.
     spheres : int or None
-        How many spheres to find (default: len(circle) or 1).
+        How many spheres (chrome and matte) to find when no circle is given; None finds
+        every credible one.
 
     Returns
     -------
     SphereCalibration
+
+    Raises
+    ------
+    SphereNotFound
+        No sphere, or no chrome sphere among those found.
     """
     grey, peak = _grey(images)
     K = check_K(K)
-    if spheres is None:
-        spheres = 1 if circle is None or np.ndim(circle) == 1 else len(circle)
     if saturation is None:
         sat = peak >= saturation_level(peak)
     else:
         sat = np.asarray(saturation, bool)
         if sat.shape != grey.shape:
             raise InputError(f"saturation masks: shape {sat.shape} does not match the frames {grey.shape}")
-    circles = _circles(grey, circle, mask, spheres)
-    keep = None if mask is None else np.asarray(mask, bool)
-    parts = [_one_sphere(grey, peak, sat, c, keep if len(circles) == 1 else None, K) for c in circles]
-    per = np.stack([p[0] for p in parts])
-    flags = {}
-    for s, part in enumerate(parts):
-        for k, why in part[2].items():
-            flags.setdefault(k, why if len(parts) == 1 else f"sphere {s}: {why}")
-    unc = np.nanmax(np.stack([p[3] for p in parts]), axis=0) if len(parts) else None
-    mean = np.nanmean(per, axis=0)
-    norm = np.linalg.norm(mean, axis=1, keepdims=True)
-    directions = np.divide(mean, norm, out=np.full_like(mean, np.nan), where=norm > 0)
-    result = SphereCalibration(directions, circles, np.stack([p[1] for p in parts]), per, flags,
-                               uncertainty_deg=unc, residual_deg=unc.copy(),
-                               method=("perspective" if K is not None else "orthographic")
-                               + f" chrome sphere x{len(circles)}, direction-weighted highlight")
-    if len(circles) > 1:
-        _add_positions(result, K)
+    found = _circles(grey, circle, mask, spheres)
+    kinds, chrome, targets = [], [], []
+    for circ, region in found:
+        kind, share = sphere_kind(grey, circ.params)
+        kinds.append({**circ.as_dict(), "kind": kind, "lit_share": round(share, 4)})
+        (chrome if kind == "chrome" else targets).append((circ, region))
+    if not chrome:
+        raise SphereNotFound(f"no chrome sphere among the {len(found)} sphere(s) in view: each is shaded "
+                             "broadly like a matte target; give the chrome sphere with --circle")
+    parts = [_one_sphere(grey, peak, sat, c, region, K) for c, region in chrome]
+    result = _combine(parts, [c for c, _ in chrome], K)
+    result.targets, result.kinds = [c for c, _ in targets], kinds
+    if len(chrome) > 1:
+        _add_positions(result, K, grey.shape[1:])
     return result
 
 
-def _add_positions(result, K):
-    """Triangulate light positions from the highlight rays of every sphere."""
+def _combine(parts, circles, K):
+    """Merge the chrome spheres' directions: the mean over the spheres that saw a light well."""
+    per = np.stack([p[0] for p in parts])
+    sphere_flags = [p[2] for p in parts]
+    bad = np.array([[k in f for k in range(per.shape[1])] for f in sphere_flags])
+    use = np.where(bad.all(0)[None, :, None], per, np.where(bad[..., None], np.nan, per))
+    mean = np.nanmean(use, axis=0) if np.isfinite(use).any() else use[0]
+    norm = np.linalg.norm(mean, axis=1, keepdims=True)
+    directions = np.divide(mean, norm, out=np.full_like(mean, np.nan), where=norm > 0)
+    flags = {}
+    for k in np.flatnonzero(bad.all(0)):
+        reasons = [f[k] for f in sphere_flags]
+        flags[int(k)] = reasons[0] if len(parts) == 1 else "; ".join(
+            f"sphere {s}: {why}" for s, why in enumerate(reasons))
+    unc = np.nanmax(np.stack([p[3] for p in parts]), axis=0)
+    method = (("perspective" if K is not None else "orthographic")
+              + f" chrome sphere x{len(circles)}, direction-weighted highlight")
+    return SphereCalibration(directions, circles, np.stack([p[1] for p in parts]), per, flags,
+                             sphere_flags, uncertainty_deg=unc, residual_deg=unc.copy(), method=method)
+
+
+def _centre(circle, K):
+    """Sphere centre (3,) in the frame of the triangulation."""
+    if K is None:
+        return np.array([circle.cx, -circle.cy, 0.0])
+    return sphere_centre(circle.params, K)
+
+
+def _add_positions(result, K, shape):
+    """Triangulate light positions from the chrome spheres' rays and decide near or far."""
     starts, rays = [], []
     for s, circ in enumerate(result.circles):
         spots = result.highlights[s]
-        n, v, pts = sphere_points(spots[:, 0], spots[:, 1], circ.params, K)
-        starts.append(pts)
+        starts.append(sphere_points(spots[:, 0], spots[:, 1], circ.params, K)[2])
         rays.append(result.per_sphere[s])
-    cos = np.clip((result.per_sphere[0] * result.per_sphere[1]).sum(-1), -1, 1)
+    starts, rays = np.stack(starts), np.stack(rays)
+    if K is None:
+        starts = starts - frame_offset(shape)
+    cos = np.clip((rays[0] * rays[1]).sum(-1), -1, 1)
     result.residual_deg = np.degrees(np.arccos(cos))
-    result.positions, result.position_error = triangulate(np.stack(starts), np.stack(rays))
+    result.triangulated, result.position_error = triangulate(starts, rays)
+    centres = np.array([_centre(c, K) for c in result.circles])
+    baseline = float(np.max(np.linalg.norm(centres[:, None] - centres[None], axis=-1)))
+    near, conditioned, reason = near_decision(result.triangulated, starts, rays, result.residual_deg,
+                                              result.uncertainty_deg, baseline)
+    # a ray a sphere doubts would drag the meeting point: such lights get no position
+    conditioned &= ~np.array([any(k in f for f in result.sphere_flags) for k in range(len(conditioned))])
+    result.near, result.near_reason = near, ("near point lights: " if near else "directional lights: ") + reason
+    if not near:
+        return
+    result.positions = np.where(conditioned[:, None], result.triangulated, np.nan)
+    norm = np.linalg.norm(result.positions, axis=1, keepdims=True)
+    result.directions = np.where(conditioned[:, None], result.positions / norm, result.directions)
+    for k in np.flatnonzero(~conditioned):
+        why = ", ".join(f"sphere {s}: {f[k]}" for s, f in enumerate(result.sphere_flags) if k in f)
+        result.flags.setdefault(int(k), "position not triangulated" + (f" ({why})" if why else
+                                                                        " (rays do not converge)"))
+    result.method += ", near lights triangulated from the spheres"
 
 
 def calibrate_lights(images, circle=None, mask=None, *, on_flag="raise", **options):

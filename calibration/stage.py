@@ -1,41 +1,131 @@
-"""The session stage: sphere frames -> calibration/lights.yaml, lights.lp, overlays."""
+"""The session stage: sphere frames -> calibration/lights.yaml, lights.lp, overlays.
+
+Chrome spheres give the directions (and, with two of them, near-light positions); a matte
+sphere in the same frames gives the per-light, per-channel intensities.
+"""
 
 import time
+from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import StageError
+from pipeline.errors import InputError, StageError
 from pipeline.imageio import read_image, read_mask
+from pipeline.session import file_sha256
 from pipeline.lightsio import LightSet, write_lights_yaml, write_lp
 
-from .overlays import write_overlay
+from .intensities import target_intensities
+from .overlays import write_overlay, write_sphere_overlays
+from .positions import frame_offset
 from .sphere import calibrate_sphere
 
-__all__ = ["calibrate_session"]
+__all__ = ["calibrate_session", "LIGHTS", "LP", "OVERLAY"]
 
-LIGHTS, LP, OVERLAY = "calibration/lights.yaml", "calibration/lights.lp", "calibration/overlay_sphere.png"
+LIGHTS, LP, OVERLAY = "calibration/lights.yaml", "calibration/lights.lp", "calibration/overlay.png"
 
 
 def _load(session, frames):
-    images, sats, inputs = [], [], []
+    """Linear frames (K, H, W, C) and saturation masks (K, H, W) of ``frames``."""
+    images, sats = [], []
     for f in frames:
         path = session.linear_path(f)
         if not path.is_file():
             raise StageError(f"{path}: linear frame {f['id']!r} is missing; run psrig decode first")
         images.append(read_image(path))
-        inputs.append(session.rel(path))
+        if images[-1].shape != images[0].shape:
+            raise StageError(f"{path}: size {images[-1].shape} differs from the first sphere frame's "
+                             f"{images[0].shape}")
         sat = session.saturation_path(f)
         sats.append(read_mask(sat) if sat.is_file() else np.zeros(images[-1].shape[:2], bool))
-        if sat.is_file():
-            inputs.append(session.rel(sat))
-    return np.stack(images), np.stack(sats), inputs
+    return np.stack(images), np.stack(sats)
+
+
+def _intensities(result, images, sats, K):
+    """(K, C) intensities from the first matte target, or ones; and a note on how."""
+    ones = np.ones((images.shape[0], images.shape[-1]))
+    if not result.targets:
+        return ones, "no matte target in view: intensities = 1"
+    directions = np.where(np.isfinite(result.directions), result.directions, [0.0, 0.0, 1.0])
+    values = target_intensities(images, directions, circle=result.targets[0].params, saturation=sats, K=K,
+                                positions=result.positions, offset=frame_offset(images.shape[1:3]))
+    bad = ~np.isfinite(values).all(1) | (values <= 0).any(1)
+    for k in np.flatnonzero(bad):
+        result.flags.setdefault(int(k), "the matte target was not lit enough to measure the intensity")
+    values[bad] = np.nanmedian(values[~bad], axis=0) if (~bad).any() else 1.0
+    return values, "matte sphere: least squares of pixel = I max(n.l, 0) + ambient, mean 1"
+
+
+def _positions(result):
+    """Positions (K, 3) with the untriangulated ones put at the median distance, or None."""
+    if result.positions is None:
+        return None
+    pos = result.positions.copy()
+    bad = ~np.isfinite(pos).all(1)
+    dist = np.nanmedian(np.linalg.norm(pos[~bad], axis=1)) if (~bad).any() else 1.0
+    directions = np.where(np.isfinite(result.directions), result.directions, [0.0, 0.0, 1.0])
+    pos[bad] = directions[bad] * dist
+    return pos
+
+
+def _extra(result, note):
+    rounded = lambda a, n=4: None if a is None else np.round(np.asarray(a, float), n).tolist()  # noqa: E731
+    extra = {"method": result.method, "light_model": "near" if result.near else "directional",
+             "light_model_reason": result.near_reason, "intensity_method": note,
+             "residual_deg": rounded(result.residual_deg), "uncertainty_deg": rounded(result.uncertainty_deg),
+             "spheres": result.kinds,
+             "sphere_flags": [{int(k): v for k, v in f.items()} for f in result.sphere_flags]}
+    if result.triangulated is not None:
+        extra["distance"] = rounded(result.distances, 3)
+        extra["ray_miss"] = rounded(result.position_error, 3)
+    return extra
+
+
+def _params(circle, sphere_mask, K):
+    circles = None if circle is None else np.atleast_2d(np.asarray(circle, float)).tolist()
+    # the mask may live outside the session: its hash goes with the parameters
+    mask_hash = None
+    if sphere_mask is not None:
+        if not Path(sphere_mask).is_file():
+            raise InputError(f"{sphere_mask}: sphere mask file not found")
+        mask_hash = file_sha256(sphere_mask)
+    return {"circle": circles, "sphere_mask": None if sphere_mask is None else str(sphere_mask),
+            "sphere_mask_sha256": mask_hash, "K": None if K is None else np.asarray(K, float).tolist()}
+
+
+def _overlays(session, images, result):
+    """Write the whole-view overlay and one close-up per sphere; returns their paths."""
+    view = images.max(0)
+    rels = [OVERLAY]
+    write_overlay(session.path(OVERLAY), view, result.circles + result.targets, result.highlights, result.flags)
+    names = [f"calibration/overlay_chrome{s}.png" for s in range(len(result.circles))]
+    names += [f"calibration/overlay_matte{s}.png" for s in range(len(result.targets))]
+    spots = list(result.highlights) + [None] * len(result.targets)
+    write_sphere_overlays([session.path(n) for n in names], view, result.circles + result.targets,
+                          spots, result.flags)
+    return rels + names
 
 
 def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, force=False, echo=print):
-    """Calibrate the lights of ``session`` from its sphere frames (see module docstring).
+    """Calibrate the lights of ``session`` from its sphere frames.
 
-    Returns the :class:`SphereCalibration`, or None when skipped (up to date, or imported
-    lights and no sphere frames).
+    Parameters
+    ----------
+    session : pipeline.session.Session
+    circle : (cx, cy, r), list of them, or None
+        Sphere outlines, pixels; found when None.
+    sphere_mask : path or None
+        PNG mask of the sphere(s): one blob (or label) per sphere.
+    K : ndarray (3, 3) or None
+        Intrinsics; orthographic when None.
+    force : bool
+        Recompute even when the stage record is current.
+    echo : callable
+        Where messages go.
+
+    Returns
+    -------
+    SphereCalibration, or None when skipped (up to date, or imported lights and no sphere
+    frames).
     """
     frames = sorted(session.frames("sphere"), key=lambda f: f["light"])
     if not frames:
@@ -43,9 +133,7 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, force=F
             echo(f"{session.root}: no sphere frames; keeping the imported {LIGHTS}")
             return None
         raise StageError(f"{session.root}: no sphere frames and no {LIGHTS}")
-    params = {"circle": None if circle is None else [float(v) for v in np.ravel(circle)],
-              "sphere_mask": None if sphere_mask is None else str(sphere_mask),
-              "K": None if K is None else np.asarray(K, float).tolist()}
+    params = _params(circle, sphere_mask, K)
     rels = [session.rel(session.linear_path(f)) for f in frames]
     rels += [session.rel(session.saturation_path(f)) for f in frames if session.saturation_path(f).is_file()]
     inputs = session.hash_inputs(rels)
@@ -53,24 +141,24 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, force=F
         echo(f"{session.root}: calibrate is up to date")
         return None
     start = time.perf_counter()
-    images, sats, _ = _load(session, frames)
+    images, sats = _load(session, frames)
     mask = None if sphere_mask is None else read_mask(sphere_mask)
     result = calibrate_sphere(images, circle, mask, saturation=sats, K=K)
+    intensities, note = _intensities(result, images, sats, K)
     order = [f["light"] for f in frames]
-    flags = {order[k]: f"frame {frames[k]['id']}: {why}" for k, why in result.flags.items()}
+    flags = {order[k]: f"frame {frames[k]['id']}: {why}" for k, why in sorted(result.flags.items())}
     directions = np.where(np.isfinite(result.directions), result.directions, [0.0, 0.0, 1.0])
-    lights = LightSet(directions, np.ones((len(frames), images.shape[-1])), positions=result.positions,
-                      flags=flags, source="chrome sphere; no matte target, intensities = 1",
-                      extra={"method": result.method,
-                             "residual_deg": np.round(result.residual_deg, 4).tolist(),
-                             "uncertainty_deg": np.round(result.uncertainty_deg, 4).tolist(),
-                             "circles": [c.as_dict() for c in result.circles]})
+    lights = LightSet(directions, intensities, positions=_positions(result), flags=flags,
+                      source=f"chrome sphere calibration ({result.method}); {note}",
+                      extra=_extra(result, note))
     write_lights_yaml(session.path(LIGHTS), lights)
     objects = {f["light"]: f for f in session.frames("object")}
     names = [objects[i].get("source", objects[i]["file"].split("/")[-1]) if i in objects else frames[k]["id"]
              for k, i in enumerate(order)]
     write_lp(session.path(LP), names, directions)
-    write_overlay(session.path(OVERLAY), images.max(0), result.circles, result.highlights, result.flags)
-    session.record_stage("calibrate", params, inputs, [LIGHTS, LP, OVERLAY],
-                         seconds=time.perf_counter() - start, flagged=flags)
+    outputs = [LIGHTS, LP] + _overlays(session, images, result)
+    session.record_stage("calibrate", params, inputs, outputs, seconds=time.perf_counter() - start,
+                         flagged=flags, light_model=lights.extra["light_model"])
+    if flags:
+        echo(f"{len(flags)} flagged light(s): " + "; ".join(f"light {k}: {why}" for k, why in flags.items()))
     return result
