@@ -372,7 +372,9 @@ class PtpCamera(Camera):
         i = self._info
         if i is None:
             return {}
+        version = i.standard_version
         return {"manufacturer": i.manufacturer, "model": i.model, "serial": i.serial_number,
+                "ptp_version": f"{version // 100}.{version % 100:02d}",
                 "device_version": i.device_version, "vendor_extension_id": i.vendor_extension_id,
                 "vendor_extension_desc": i.vendor_extension_desc,
                 "operations": list(i.operations), "events": list(i.events),

@@ -1,0 +1,64 @@
+"""``psrig capture SESSION --rig NAME [--resume]``: capture a session on a rig.
+
+The rig comes from the rig file (``--config``, else $PSRIG_RIGS, else ./rigs.yaml, else psrig's
+own); ``--rig sim`` needs no hardware. A capture stopped by an error, Ctrl-C, SIGTERM or a kill
+leaves a valid session that ``--resume`` completes (see :mod:`rig.capture`).
+
+Debugging and tests: the environment variable ``PSRIG_SIM_FAULTS`` injects faults into a
+simulated rig, e.g. ``PSRIG_SIM_FAULTS="busy:2,garble:1@object_005,camera.disconnect@sphere_003"``
+(``name[:count][@frame id]``; the fault names are listed in :mod:`rig.sim.rig`). It is ignored
+for real rigs.
+"""
+
+import os
+import sys
+
+__all__ = ["register", "run", "FAULTS_ENV"]
+
+FAULTS_ENV = "PSRIG_SIM_FAULTS"
+
+
+def register(subparsers):
+    parser = subparsers.add_parser(
+        "capture", help="capture object, sphere, dark and ambient frames into a session",
+        description="Capture a session: dark and ambient frames with the lights off, one frame per "
+                    "light, then the chrome sphere (the operator is asked to place it). Stopped "
+                    "captures are completed with --resume; nothing captured is ever overwritten.")
+    parser.add_argument("session", metavar="SESSION", help="session folder (new, empty, or to resume)")
+    parser.add_argument("--rig", required=True, metavar="NAME", help="rig of the rig file (e.g. sim)")
+    parser.add_argument("--config", metavar="FILE", help="rig file to read instead of rigs.yaml")
+    parser.add_argument("--resume", action="store_true",
+                        help="complete an existing session: verify its frames, capture the missing ones")
+    parser.add_argument("--no-sphere", dest="sphere", action="store_false", default=None,
+                        help="skip the chrome-sphere frames")
+    parser.add_argument("--yes", action="store_true",
+                        help="do not ask before the sphere frames (the sphere is already in place)")
+    parser.set_defaults(func=run)
+
+
+def _prompt_yes(message):
+    print(f"{message}: assumed done (--yes)", file=sys.stderr)
+    return True
+
+
+def run(args):
+    from rig.capture import capture_session
+    from rig.config import get_rig
+
+    rig = get_rig(args.rig, args.config)
+    sim = None
+    if rig.is_simulated and os.environ.get(FAULTS_ENV):
+        from rig.sim.rig import SimulatedRig
+
+        sim = SimulatedRig(rig, faults=os.environ[FAULTS_ENV])
+    try:
+        capture_session(args.session, rig, resume=args.resume, sim=sim, sphere=args.sphere,
+                        on_prompt=_prompt_yes if args.yes else None)
+    except KeyboardInterrupt as exc:
+        reason = str(exc) or "interrupted"
+        config = f" --config {args.config}" if args.config else ""
+        print(f"psrig capture: {reason}; lights switched off, the frames captured so far are kept. "
+              f"Complete with: psrig capture {args.session} --rig {args.rig}{config} --resume",
+              file=sys.stderr)
+        return 130
+    return 0
