@@ -72,7 +72,7 @@ def _reusable(session, previous, params, inputs, frame, reference_ids):
         return False
     if previous.get("inputs", {}).get(frame["file"]) != inputs.get(frame["file"]):
         return False
-    if frame["kind"] in _LIT_KINDS and previous.get("subtracted", {}).get("frames") != reference_ids:
+    if frame["kind"] in _LIT_KINDS and _previous_references(previous, frame["kind"]) != reference_ids:
         return False
     recorded = previous.get("outputs", {})
     for path in (session.linear_path(frame), session.saturation_path(frame)):
@@ -97,6 +97,7 @@ def _write_reference(session, frames, kind, folder):
         flags = read_mask(session.saturation_path(frame))
         total = linear.astype(np.float64) if total is None else total + linear
         saturated = flags if saturated is None else saturated | flags
+    Path(folder).mkdir(parents=True, exist_ok=True)
     paths = {"kind": kind, "mean": str(Path(folder) / "mean.npy"),
              "saturated": str(Path(folder) / "saturated.npy")}
     np.save(paths["mean"], (total / len(frames)).astype(np.float32))
@@ -111,16 +112,24 @@ class _Run:
         self.session, self.params, self.inputs, self.sizes = session, params, inputs, sizes
         self.failed, self.previous, self.jobs, self.show = failed, previous, jobs, show
         self.infos = {}
+        self.tasks = []
 
     def decode(self, frames, reference=None, reference_ids=None):
         """Decode the frames whose outputs are not reusable; collect infos and failures."""
-        tasks = []
+        self.queue(frames, reference, reference_ids)
+        self.decode_queued()
+
+    def queue(self, frames, reference=None, reference_ids=None):
+        """Plan the decoding of the frames whose outputs are not reusable (one pool for all)."""
         for frame in frames:
             if _reusable(self.session, self.previous, self.params, self.inputs, frame, reference_ids):
                 self.infos[frame["id"]] = self.previous.get("frames", {}).get(frame["id"], {})
             else:
-                tasks.append(_task(self.session, frame, dict(self.params), self.sizes[frame["id"]],
-                                   reference))
+                self.tasks.append(_task(self.session, frame, dict(self.params),
+                                        self.sizes[frame["id"]], reference))
+
+    def decode_queued(self):
+        tasks, self.tasks = self.tasks, []
         if not tasks:
             return
         for frame_id, (info, error) in run_tasks(tasks, jobs=self.jobs, show=self.show).items():
@@ -134,13 +143,22 @@ class _Run:
                                  reference_ids) for f in frames)
 
 
-def _references(unlit, infos):
-    """(kind, [frames]) to subtract from lit frames: decoded ambient frames, else dark ones."""
+def _references(unlit, infos, lit_kind):
+    """(kind, [frames]) to subtract from lit frames of ``lit_kind``: the decoded ambient frames
+    shot for that kind (an ambient frame's ``applies_to``; every lit kind when it has none),
+    else the dark ones."""
     for kind in REFERENCE_KINDS:
-        chosen = [f for f in unlit if f["kind"] == kind and f["id"] in infos]
+        chosen = [f for f in unlit if f["kind"] == kind and f["id"] in infos
+                  and (kind != "ambient" or lit_kind in f.get("applies_to", _LIT_KINDS))]
         if chosen:
             return kind, chosen
     return None, []
+
+
+def _previous_references(previous, lit_kind):
+    """Frame ids the previous run subtracted from ``lit_kind`` frames."""
+    subtracted = previous.get("subtracted", {})
+    return subtracted.get("by_kind", {}).get(lit_kind, subtracted).get("frames")
 
 
 def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma="srgb",
@@ -183,17 +201,22 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     unlit = [f for f in frames if f["kind"] not in _LIT_KINDS and f["id"] not in failed]
     lit = [f for f in frames if f["kind"] in _LIT_KINDS and f["id"] not in failed]
     run.decode(unlit)
-    kind, references = _references(unlit, run.infos)
-    reference_ids = [f["id"] for f in references]
+    subtracted = {}
     with tempfile.TemporaryDirectory(prefix="psrig-decode-") as folder:
-        reference = None
-        if references and run.needs_work(lit, reference_ids):
-            reference = _write_reference(session, references, kind, folder)
-        run.decode(lit, reference, reference_ids)
-    return _record(session, frames, run, kind, reference_ids, time.perf_counter() - start)
+        for lit_kind in sorted({f["kind"] for f in lit}):
+            group = [f for f in lit if f["kind"] == lit_kind]
+            kind, references = _references(unlit, run.infos, lit_kind)
+            reference_ids = [f["id"] for f in references]
+            reference = None
+            if references and run.needs_work(group, reference_ids):
+                reference = _write_reference(session, references, kind, Path(folder) / lit_kind)
+            run.queue(group, reference, reference_ids)
+            subtracted[lit_kind] = {"kind": kind, "frames": reference_ids}
+        run.decode_queued()
+    return _record(session, frames, run, subtracted, time.perf_counter() - start)
 
 
-def _record(session, frames, run, kind, reference_ids, seconds):
+def _record(session, frames, run, subtracted, seconds):
     done = [f for f in frames if f["id"] in run.infos]
     outputs = [session.rel(p(f)) for f in done for p in (session.linear_path, session.saturation_path)]
     status = "ok" if not run.failed else ("partial" if done else "failed")
@@ -201,5 +224,6 @@ def _record(session, frames, run, kind, reference_ids, seconds):
         "decode", run.params, run.inputs, outputs, status=status, seconds=seconds,
         failed={k: run.failed[k] for k in sorted(run.failed)},
         frames_not_raw=[f["id"] for f in done if not run.infos[f["id"]].get("raw", True)],
-        subtracted={"kind": kind, "frames": reference_ids},
+        # top level: what the object frames got (earlier records' form); by_kind: every lit kind
+        subtracted={**subtracted.get("object", {"kind": None, "frames": []}), "by_kind": subtracted},
         frames={f["id"]: run.infos[f["id"]] for f in done})

@@ -36,7 +36,7 @@ import sys
 import threading
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -81,11 +81,13 @@ class CaptureInterrupted(KeyboardInterrupt):
 
 @dataclass(frozen=True)
 class Shot:
-    """One planned frame: its id, kind and light (None for dark and ambient frames)."""
+    """One planned frame: its id, kind, light (None for dark and ambient frames) and the extra
+    keys its manifest entry gets."""
 
     frame_id: str
     kind: str
     light: int | None = None
+    extra: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -99,7 +101,10 @@ def plan_frames(rig_config, sphere=True):
     """The frames a capture on ``rig_config`` takes, in order (list of :class:`Shot`)."""
     frames, count = rig_config.frames, rig_config.lights.count
     plan = [Shot(f"dark_{n:03d}", "dark") for n in range(frames.get("dark", 0))]
-    plan += [Shot(f"ambient_{n:03d}", "ambient") for n in range(frames.get("ambient", 0))]
+    # shot with the object in view: its ambient light is the object frames' (decode subtracts it
+    # from those only; sphere frames, shot later in another scene, get the dark frames)
+    plan += [Shot(f"ambient_{n:03d}", "ambient", extra={"applies_to": ["object"]})
+             for n in range(frames.get("ambient", 0))]
     plan += [Shot(f"object_{i:03d}", "object", i) for i in range(count)]
     if sphere:
         plan += [Shot(f"sphere_{i:03d}", "sphere", i) for i in range(count)]
@@ -325,7 +330,7 @@ def _adopt_orphans(session, plan, echo):
         if problem is None:
             stamp = _dt.datetime.fromtimestamp(path.stat().st_mtime, _dt.timezone.utc)
             session.adopt_frame(shot.kind, session.rel(path), light=shot.light, frame_id=shot.frame_id,
-                                captured_at=stamp.replace(microsecond=0).isoformat())
+                                captured_at=stamp.replace(microsecond=0).isoformat(), **shot.extra)
             echo(f"capture: adopted {session.rel(path)} (written before the last capture stopped)")
         else:
             moved = _quarantine(session, path)
@@ -453,7 +458,7 @@ def _capture_one(session, rig_config, devices, shot):
     suffix = Path(image.filename).suffix.lower() or f".{rig_config.raw_format}"
     session.add_frame(shot.kind, image.data, light=shot.light, suffix=suffix, frame_id=shot.frame_id,
                       save=False, exposure=dict(rig_config.exposure), captured_at=now_iso(),
-                      camera_file=image.filename)
+                      camera_file=image.filename, **shot.extra)
 
 
 def _lights_off(lights, raise_errors):

@@ -162,7 +162,8 @@ def test_session_writes_contract_outputs(tmp_path):
 def test_dark_frame_is_subtracted_from_lit_frames(tmp_path):
     session = lit_session(tmp_path, dark=0.05)
     record = decode_session(session, jobs=1, progress=False)
-    assert record["subtracted"] == {"kind": "dark", "frames": ["dark_000"]}
+    assert record["subtracted"] == {"kind": "dark", "frames": ["dark_000"],
+                                    "by_kind": {"object": {"kind": "dark", "frames": ["dark_000"]}}}
     assert np.allclose(read_image(session.linear_path("dark_000")), 0.05, atol=1e-4)
     for light in range(3):
         assert np.allclose(read_image(session.linear_path(f"object_{light:03d}")), 0.2 + 0.1 * light,
@@ -172,8 +173,25 @@ def test_dark_frame_is_subtracted_from_lit_frames(tmp_path):
 def test_ambient_is_preferred_to_dark(tmp_path):
     session = lit_session(tmp_path, dark=0.01, ambient=0.08)
     record = decode_session(session, jobs=1, progress=False)
-    assert record["subtracted"] == {"kind": "ambient", "frames": ["ambient_000"]}
+    assert record["subtracted"]["kind"] == "ambient" and record["subtracted"]["frames"] == ["ambient_000"]
     assert np.allclose(read_image(session.linear_path("object_002")), 0.4, atol=1e-4)
+
+
+def test_ambient_frames_apply_only_to_the_kinds_they_were_shot_for(tmp_path):
+    """A capture's ambient frame is shot with the object in view; the sphere frames, shot in
+    another scene, get the dark frame instead."""
+    session = Session.create(tmp_path / "session")
+    session.add_frame("dark", flat_dng(0.01))
+    session.add_frame("ambient", flat_dng(0.08), applies_to=["object"])
+    session.add_frame("object", flat_dng(0.38), light=0)
+    session.add_frame("sphere", flat_dng(0.31), light=0)
+    record = decode_session(session, jobs=1, progress=False)
+    assert record["subtracted"]["by_kind"] == {"object": {"kind": "ambient", "frames": ["ambient_000"]},
+                                               "sphere": {"kind": "dark", "frames": ["dark_000"]}}
+    assert np.allclose(read_image(session.linear_path("object_000")), 0.30, atol=1e-4)
+    assert np.allclose(read_image(session.linear_path("sphere_000")), 0.30, atol=1e-4)
+    again = decode_session(session, jobs=1, progress=False, force=False)
+    assert again["subtracted"] == record["subtracted"]
 
 
 def test_noisy_dark_keeps_unbiased_negative_values(tmp_path):
