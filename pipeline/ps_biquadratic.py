@@ -25,10 +25,11 @@ both against the general code, which per-pixel (near) lights still use.
 
 import numpy as np
 
+from .ps_kernels import alternate_shared_jit, jit_enabled
 from .ps_lambert import solve3
 
 __all__ = ["half_vectors", "to_paper_order", "shape_and_slope", "fit_pixel_shapes", "gauss_newton_normals",
-           "fit_shared_shape", "alternate_shared", "unit"]
+           "fit_shared_shape", "alternate_shared", "alternate_numpy", "unit"]
 
 _A = np.repeat(np.arange(3), 3)  # power of x for flat index 3a + c
 _C = np.tile(np.arange(3), 3)    # power of y
@@ -310,6 +311,21 @@ def _schur_blocks_shared(weights, state, lights, h, y3):
 def alternate_shared(obs, weights, b, lights, h, y, prior=None, shape_prior=0.0, max_iter=10, tol=1e-6):
     """The alternation (fit shapes, one Gauss-Newton normal step) for lights shared by all pixels.
 
+    Runs the compiled per-pixel kernel (:func:`pipeline.ps_kernels.alternate_shared_jit`)
+    unless ``PSRIG_NO_JIT`` is set or compiling failed, else the numpy reference
+    :func:`alternate_numpy`; parameters and results are those of :func:`alternate_numpy`
+    (without its iteration counts).
+    """
+    fast = alternate_shared_jit(obs, weights, b, lights, h, y, prior=prior, shape_prior=shape_prior,
+                                max_iter=max_iter, tol=tol) if jit_enabled() else None
+    result = fast if fast is not None else alternate_numpy(obs, weights, b, lights, h, y, prior=prior,
+                                                           shape_prior=shape_prior, max_iter=max_iter, tol=tol)
+    return result[:4]
+
+
+def alternate_numpy(obs, weights, b, lights, h, y, prior=None, shape_prior=0.0, max_iter=10, tol=1e-6):
+    """The alternation for shared lights in numpy: the reference for the compiled kernel.
+
     Same steps and stopping rule as calling :func:`fit_pixel_shapes` then
     :func:`gauss_newton_normals` per iteration, computed with fewer passes over the (N, K)
     arrays: x and n . l carry over from one step's final residual to the next fit, the shape
@@ -336,12 +352,15 @@ def alternate_shared(obs, weights, b, lights, h, y, prior=None, shape_prior=0.0,
         Weighted residual sum of squares of the returned b and coeffs (NaN where never fitted).
     moving : ndarray (N,) bool
         Pixels still changing after ``max_iter`` iterations.
+    iterations : ndarray (N,) int
+        Shape fits done per pixel.
     """
     b = np.array(b, dtype=float)
     coeffs = np.zeros((len(b), 3, 3))
     coeffs[:, 0, 0] = 1.0
     rss = np.full(len(b), np.nan)
     idx = np.arange(len(b))
+    iterations = np.zeros(len(b), np.int64)
     y = np.asarray(y, float)
     tables = _tables(lights, h, y)
     w, wobs = weights, weights * obs
@@ -350,6 +369,7 @@ def alternate_shared(obs, weights, b, lights, h, y, prior=None, shape_prior=0.0,
     for _ in range(max_iter):
         if idx.size == 0:
             break
+        iterations[idx] += 1
         c = _fit_shapes(x, cos, w, wobs, albedo, tables, prior, shape_prior)
         q = [c[:, a, :] @ tables["y3"].T for a in range(3)]
         b_new, before = _gauss_newton_step(obs, w, b[idx], albedo, n, x, cos, q, lights, h, tables)
@@ -370,7 +390,7 @@ def alternate_shared(obs, weights, b, lights, h, y, prior=None, shape_prior=0.0,
             albedo, n, x, cos = albedo[keep], n[keep], x[keep], cos[keep]
     moving = np.zeros(len(b), bool)
     moving[idx] = True
-    return b, coeffs, rss, moving
+    return b, coeffs, rss, moving, iterations
 
 
 def _tables(lights, h, y):
