@@ -11,6 +11,13 @@ GetObject (in chunks, zero-length packets handled, size verified), DeleteObject.
   ObjectAddedInSDRAM;
 - ``auto``: chosen from DeviceInfo's VendorExtensionID, the USB idVendor and the operations.
 
+Exposure (:meth:`PtpCamera.set_exposure`): the rig's ``exposure:`` keys shutter, iso and aperture
+are set once after opening, checked against what the camera allows and read back. ``generic`` and
+``nikon`` use the PTP standard properties (GetDevicePropDesc / SetDevicePropValue /
+GetDevicePropValue: ExposureTime 0x500D in 0.1 ms, FNumber 0x5007 x 100, ExposureIndex 0x500F);
+``canon`` uses EOS_SetDevicePropValueEx with Canon's stop codes (0xD101..0xD103), its allowed
+values and read-back from the GetEvent property records.
+
 DeviceBusy (0x2019) is retried with exponential back-off. USB failures become
 :class:`CameraError` subclasses whose message names the camera and the operation. After a timeout
 or protocol error the next :meth:`PtpCamera.capture` resets the PTP channel and reopens the
@@ -32,8 +39,9 @@ import usb.core
 import usb.util
 
 from pipeline.errors import PsrigError
-from rig import ptp
-from rig.ptp import EventCode, OperationCode as Op, ResponseCode as RC
+from rig import exposure as exposure_values, ptp
+from rig.exposure import choose_value, format_exposure
+from rig.ptp import EventCode, OperationCode as Op, PropCode, ResponseCode as RC
 
 __all__ = [
     "CameraError",
@@ -44,12 +52,15 @@ __all__ = [
     "CameraInterfaceClaimed",
     "CameraProtocolError",
     "CameraConfigError",
+    "CameraExposureError",
     "CapturedImage",
     "Camera",
     "PtpCamera",
     "make_camera",
     "CONFIG_KEYS",
     "PATHS",
+    "choose_value",
+    "format_exposure",
 ]
 
 log = logging.getLogger(__name__)
@@ -92,6 +103,10 @@ class CameraProtocolError(CameraError):
 
 class CameraConfigError(CameraError):
     """A rig's ``camera:`` section is invalid."""
+
+
+class CameraExposureError(CameraError):
+    """The camera refused, or does not support, an exposure setting; names the key and value."""
 
 
 @dataclass
@@ -138,6 +153,16 @@ class Camera(abc.ABC):
     @abc.abstractmethod
     def device_info(self) -> dict:
         """manufacturer, model, serial, operations supported, ..."""
+
+    def set_exposure(self, exposure: dict) -> dict:
+        """Set a rig's ``exposure:`` keys on the camera; returns what it reported back.
+
+        Drivers that cannot set exposure refuse any non-empty section.
+        """
+        if exposure:
+            raise CameraExposureError(f"{type(self).__name__} cannot set exposure "
+                                      f"({', '.join(exposure)}); set it on the camera")
+        return {}
 
     def __enter__(self):
         return self.open()
@@ -214,6 +239,8 @@ class PtpCamera(Camera):
         self._stale = False
         self._tid = 0
         self._detached = None
+        self._eos_values: dict[int, int] = {}
+        self._eos_allowed: dict[int, list] = {}
 
     # -- naming and errors -------------------------------------------------------------------
     @property
@@ -387,11 +414,14 @@ class PtpCamera(Camera):
         self._tid = tid + 1 if tid < 0xFFFFFFFE else 1
         return tid
 
-    def _transaction(self, code, params=(), *, retry_busy=True) -> _Response:
-        """Run one operation; DeviceBusy is retried with back-off unless ``retry_busy`` is off."""
+    def _transaction(self, code, params=(), *, retry_busy=True, data=None) -> _Response:
+        """Run one operation; DeviceBusy is retried with back-off unless ``retry_busy`` is off.
+
+        ``data`` (bytes) is sent to the camera in a data phase (SetDevicePropValue, ...).
+        """
         delay, waited = self.busy_backoff, 0.0
         for attempt in range(self.busy_retries + 1):
-            resp = self._transact_once(code, params)
+            resp = self._transact_once(code, params, data)
             if resp.code != RC.DeviceBusy or not retry_busy:
                 return resp
             if attempt < self.busy_retries:
@@ -401,11 +431,14 @@ class PtpCamera(Camera):
         raise CameraBusy(f"{self.name}: {_op_name(code)} still answered DeviceBusy (0x2019) "
                          f"after {self.busy_retries} retries over {waited:.2f} s")
 
-    def _transact_once(self, code, params) -> _Response:
+    def _transact_once(self, code, params, out=None) -> _Response:
         tid = self._next_tid()
         what = _op_name(code)
         with self._usb(what):
             self._dev.write(self._ep_out, ptp.pack_command(code, tid, params), self._ms)
+            if out is not None:
+                self._dev.write(self._ep_out, ptp.pack_container(
+                    ptp.ContainerType.DATA, code, tid, (), out), self._ms)
             n = self._dev.read(self._ep_in, self._buf, self._ms)
             length, ctype, rcode, rtid = ptp.unpack_header(memoryview(self._buf)[:n])
             data, head = None, memoryview(self._buf)[:n]
@@ -594,7 +627,13 @@ class PtpCamera(Camera):
             pause = min(pause * 2, 0.05)
 
     def _eos_added(self):
-        for rec in ptp.unpack_eos_events(self._data(Op.EOS_GetEvent)):
+        """Poll EOS GetEvent once: the first new object's handle (or None); property values
+        and allowed lists in the records are kept for :meth:`set_exposure`."""
+        records = ptp.unpack_eos_events(self._data(Op.EOS_GetEvent))
+        values, allowed = ptp.eos_prop_records(records)
+        self._eos_values.update(values)
+        self._eos_allowed.update(allowed)
+        for rec in records:
             if isinstance(rec, ptp.EosObjectAdded):
                 return rec.handle
         return None
@@ -659,6 +698,203 @@ class PtpCamera(Camera):
                 log.warning("%s: DeleteObject %s answered %s", self.name, info.filename,
                             _rc_name(resp.code))
         return CapturedImage(data, info.filename, handle, len(data), info.object_format)
+
+    # -- exposure ------------------------------------------------------------------------------
+    def set_exposure(self, exposure: dict) -> dict:
+        """Set shutter, iso and aperture on the camera, each checked and read back.
+
+        Parameters
+        ----------
+        exposure : dict
+            A rig's ``exposure:`` section: ``shutter`` (seconds: '1/30', 0.033, 2),
+            ``iso`` (100) and ``aperture`` (f-number: 8, 'f/5.6'); any of them may be absent.
+
+        Returns
+        -------
+        dict
+            Per key what the camera reported back after setting it: ``value`` (seconds,
+            ISO or f-number, the nominal value the camera shows), ``display`` ('1/30 s',
+            'ISO 100', 'f/8'), ``requested`` (the rig's text), ``property`` ('0x500D
+            ExposureTime') and ``device_value`` (the raw property value).
+
+        Raises
+        ------
+        CameraExposureError
+            A value the camera does not allow (the message lists the nearest allowed
+            values), a property it does not support or will not let the host set, or a
+            read-back that differs from the value set.
+        CameraConfigError
+            An unknown key or a value that is not a number.
+        """
+        unknown = sorted(set(exposure) - set(exposure_values.EXPOSURE_KEYS))
+        if unknown:
+            raise CameraConfigError(f"exposure: unknown key(s) {', '.join(unknown)}; known: "
+                                    f"{', '.join(exposure_values.EXPOSURE_KEYS)}")
+        self._ensure_ready()
+        report = {}
+        for key in exposure_values.EXPOSURE_KEYS:
+            if exposure.get(key) is None:
+                continue
+            try:
+                want = _PARSE[key](exposure[key])
+            except ValueError as exc:
+                raise CameraConfigError(str(exc)) from None
+            setter = self._set_eos if self.path == "canon" else self._set_standard
+            record = setter(key, exposure[key], want)
+            report[key] = {"requested": exposure[key], **record}
+            log.info("%s: exposure.%s set to %s", self.name, key, record["display"])
+        return report
+
+    def _exposure_error(self, key, requested, message):
+        return CameraExposureError(f"{self.name}: exposure.{key}: {requested!r}: {message}")
+
+    def _unsupported(self, key, requested, code, why):
+        return self._exposure_error(
+            key, requested, f"the camera does not support setting {_KEY_NAME[key]} "
+            f"(property 0x{code:04X} {_prop_name(code)}: {why})")
+
+    def _set_standard(self, key, requested, want) -> dict:
+        code = _STANDARD[key]
+        ops = set(self._info.operations)
+        missing = [_op_name(op) for op in (Op.GetDevicePropDesc, Op.SetDevicePropValue,
+                                           Op.GetDevicePropValue) if op not in ops]
+        if missing:
+            raise self._unsupported(key, requested, code, f"no {', '.join(missing)} operation")
+        resp = self._transaction(Op.GetDevicePropDesc, (code,))
+        if resp.code in (RC.DevicePropNotSupported, RC.ParameterNotSupported):
+            raise self._unsupported(key, requested, code, f"GetDevicePropDesc answered "
+                                                          f"{_rc_name(resp.code)}")
+        self._check(resp, Op.GetDevicePropDesc)
+        with self._usb("GetDevicePropDesc"):
+            desc = ptp.DevicePropDesc.unpack(resp.data or b"")
+        if not desc.writable:
+            raise self._exposure_error(key, requested, f"{_KEY_NAME[key]} is read-only on this "
+                                       f"camera now (set by the lens or the mode dial? use M)")
+        device = self._standard_value(key, requested, want, desc)
+        with self._usb("SetDevicePropValue"):
+            payload = ptp.pack_value(desc.datatype, device)
+        resp = self._transaction(Op.SetDevicePropValue, (code,), data=payload)
+        self._check_set(key, requested, code, resp, Op.SetDevicePropValue,
+                        lambda: self._allowed_standard(key, desc), device)
+        with self._usb("GetDevicePropValue"):
+            got = ptp.unpack_value(ptp.Reader(self._data(Op.GetDevicePropValue, code)),
+                                   desc.datatype)
+        return self._verified(key, requested, code, device, got, exposure_values.decode_standard(key, got))
+
+    def _standard_value(self, key, requested, want, desc) -> int:
+        """The device value to set: the allowed value matching ``want`` (or an error)."""
+        if desc.form == ptp.FormFlag.ENUMERATION:
+            pairs = self._allowed_standard(key, desc)
+            device, nearest = choose_value(key, want, pairs)
+            if device is None:
+                raise self._refused(key, requested, want, nearest, pairs)
+            return device
+        device = exposure_values.encode_standard(key, want)
+        if desc.form == ptp.FormFlag.RANGE:
+            low, high, step = desc.range
+            snapped = min(max(device, low), high)
+            snapped = low + round((snapped - low) / max(step, 1)) * max(step, 1)
+            ok = desc.allows(device) or (exposure_values.stop_distance(key, want, exposure_values.decode_standard(key, snapped))
+                                         <= exposure_values.TOLERANCE[key] and desc.allows(snapped))
+            if not ok:
+                span = (f"{format_exposure(key, exposure_values.decode_standard(key, low))} .. "
+                        f"{format_exposure(key, exposure_values.decode_standard(key, high))}")
+                raise self._exposure_error(
+                    key, requested, f"{format_exposure(key, want)} is outside what the camera "
+                    f"allows ({span}, steps of {step}); nearest allowed: "
+                    f"{format_exposure(key, exposure_values.decode_standard(key, snapped))}")
+            return device if desc.allows(device) else snapped
+        return device
+
+    def _allowed_standard(self, key, desc) -> list:
+        values = desc.values or ([] if desc.range is None else list(desc.range[:2]))
+        return [(v, exposure_values.decode_standard(key, v)) for v in values if v > 0]
+
+    def _refused(self, key, requested, want, nearest, pairs):
+        shown = ", ".join(format_exposure(key, value) for _, value in nearest)
+        values = sorted(v for _, v in pairs)
+        span = (f"{len(values)} allowed, {format_exposure(key, values[0])} .. "
+                f"{format_exposure(key, values[-1])}") if values else "none allowed"
+        return self._exposure_error(
+            key, requested, f"{format_exposure(key, want)} is not one of the {_PLURAL[key]} "
+            f"this camera allows now; nearest allowed: {shown} ({span})")
+
+    def _check_set(self, key, requested, code, resp, op, allowed, device):
+        """Turn the answer to a Set operation into a named error."""
+        if resp.code == RC.InvalidDevicePropValue:
+            pairs = [p for p in allowed() if p[0] != device]
+            want = _PARSE[key](requested)
+            _, nearest = choose_value(key, want, pairs)
+            raise self._exposure_error(
+                key, requested, f"the camera refused {format_exposure(key, want)} "
+                f"({_rc_name(resp.code)}); nearest allowed: "
+                f"{', '.join(format_exposure(key, v) for _, v in nearest) or 'unknown'}")
+        if resp.code in (RC.DevicePropNotSupported, RC.ParameterNotSupported):
+            raise self._unsupported(key, requested, code, f"{_op_name(op)} answered "
+                                                          f"{_rc_name(resp.code)}")
+        if resp.code == RC.AccessDenied:
+            raise self._exposure_error(key, requested, f"the camera denied setting "
+                                       f"{_KEY_NAME[key]} ({_rc_name(resp.code)}); is it in M mode?")
+        self._check(resp, op)
+
+    def _verified(self, key, requested, code, device, got, value) -> dict:
+        if got != device:
+            raise self._exposure_error(
+                key, requested, f"set to device value {device} "
+                f"({format_exposure(key, _decode(key, code, device))}) but the camera reports "
+                f"{got} ({format_exposure(key, value) if value else 'auto'})")
+        return {"value": value, "display": format_exposure(key, value),
+                "property": f"0x{code:04X} {_prop_name(code)}", "device_value": int(got)}
+
+    def _set_eos(self, key, requested, want) -> dict:
+        code = exposure_values.EOS_SCALES[key]["code"]
+        if Op.EOS_SetDevicePropValueEx not in set(self._info.operations):
+            raise self._unsupported(key, requested, code, "no EOS_SetDevicePropValueEx operation")
+        self._eos_added()  # fresh values and allowed lists
+
+        def allowed():
+            codes = self._eos_allowed.get(code) or exposure_values.eos_table(key)
+            return [(c, exposure_values.eos_decode(key, c)) for c in codes if c != 0]
+
+        pairs = allowed()
+        device, nearest = choose_value(key, want, pairs)
+        if device is None:
+            raise self._refused(key, requested, want, nearest, pairs)
+        resp = self._transaction(Op.EOS_SetDevicePropValueEx,
+                                 data=ptp.pack_eos_set_prop(code, device))
+        self._check_set(key, requested, code, resp, Op.EOS_SetDevicePropValueEx, allowed,
+                        device)
+        # the camera reports the new value in a PropValueChanged record of a later GetEvent
+        deadline, pause = time.monotonic() + self.timeout, 0.001
+        self._eos_values.pop(code, None)
+        while True:
+            self._eos_added()
+            if code in self._eos_values or time.monotonic() >= deadline:
+                break
+            time.sleep(pause)
+            pause = min(pause * 2, 0.05)
+        if code not in self._eos_values:
+            raise self._exposure_error(key, requested, f"the camera did not report "
+                                       f"{_KEY_NAME[key]} back within {self.timeout:g} s")
+        got = self._eos_values[code]
+        return self._verified(key, requested, code, device, got, exposure_values.eos_decode(key, got))
+
+
+# -- exposure helpers ---------------------------------------------------------------------------
+_PARSE = {"shutter": exposure_values.parse_shutter, "iso": exposure_values.parse_iso, "aperture": exposure_values.parse_aperture}
+_KEY_NAME = {"shutter": "shutter time", "iso": "ISO speed", "aperture": "aperture"}
+_PLURAL = {"shutter": "shutter times", "iso": "ISO speeds", "aperture": "apertures"}
+_STANDARD = {"shutter": PropCode.ExposureTime, "iso": PropCode.ExposureIndex,
+             "aperture": PropCode.FNumber}
+def _prop_name(code: int) -> str:
+    try:
+        return PropCode(code).name
+    except ValueError:
+        return "property"
+
+
+def _decode(key, code, device):
+    return exposure_values.eos_decode(key, device) if code >= 0xD000 else exposure_values.decode_standard(key, device)
 
 
 #: keys a rig's ``camera:`` section may hold (rig.config can validate against these)

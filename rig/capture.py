@@ -3,6 +3,11 @@
 :func:`capture_session` drives a rig's light controller and camera (the simulated rig's when the
 rig is ``sim``) and stores every frame in a session folder exactly as the camera delivered it.
 
+The rig's ``exposure:`` (shutter, iso, aperture) is set on the camera once it is open, before any
+frame; an exposure the camera refuses or lacks stops the capture before the first frame, naming
+the key and the value. The manifest records the request (``rig.exposure``), what the camera
+reported back (``camera.exposure``: value, property, device value) and each frame's settings.
+
 Order: ``dark_000..`` (lights OFF; the simulated rig lets no light reach the sensor),
 ``ambient_000..`` (lights OFF), ``object_000 .. object_{K-1}`` (light i ON, confirmed by the
 controller, expose, download, atomic write; the manifest is saved at least every
@@ -44,7 +49,7 @@ import numpy as np
 from pipeline.errors import PsrigError, SessionError
 from pipeline.progress import progress as progress_bar
 from pipeline.session import FOLDERS, MANIFEST, Session, now_iso
-from rig.camera import CameraError, make_camera
+from rig.camera import CameraError, format_exposure, make_camera
 from rig.lights import LightError, make_light_controller
 
 __all__ = ["capture_session", "plan_frames", "check_raw_file", "CaptureError", "CaptureInterrupted",
@@ -95,6 +100,7 @@ class _Devices:
     lights: object
     camera: object
     sim: object = None
+    exposure: dict = field(default_factory=dict)
 
 
 def plan_frames(rig_config, sphere=True):
@@ -147,8 +153,9 @@ def capture_session(target, rig_config, *, resume=False, sim=None, progress=True
     sphere = bool(rig_config.frames.get("sphere", True) if sphere is None else sphere)
     session, root = _existing_session(target, rig_config, resume)
     with _open_devices(rig_config, sim) as devices, _sigterm_as_interrupt():
+        devices.exposure = _set_exposure(rig_config, devices, echo)
         session = session or Session.create(root)
-        _record_rig(session, rig_config, devices, echo)
+        _record_rig(session, rig_config, devices, echo, devices.exposure)
         if devices.sim is not None and not _truth_complete(session):
             devices.sim.write_truth(session)
         plan = plan_frames(rig_config, sphere)
@@ -254,7 +261,34 @@ def _sigterm_as_interrupt():
 
 # -- the manifest ---------------------------------------------------------------------------------
 
-def _record_rig(session, rig_config, devices, echo):
+def _set_exposure(rig_config, devices, echo):
+    """Set the rig's ``exposure:`` on the camera (before any frame); what it reported back."""
+    if not rig_config.exposure:
+        return {}
+    try:
+        report = devices.camera.set_exposure(dict(rig_config.exposure))
+    except CameraError as exc:
+        raise CaptureError(f"{rig_config.source}: rig '{rig_config.name}': {exc}; nothing was "
+                           "captured") from exc
+    echo("capture: exposure set on the camera: "
+         + ", ".join(rec["display"] for rec in report.values()))
+    return report
+
+
+def _frame_exposure(rig_config, exposure):
+    """A frame's ``exposure`` entry: the values the camera reported (the request where unset)."""
+    out = dict(rig_config.exposure)
+    for key, rec in exposure.items():
+        value = rec["value"]
+        if key == "shutter":
+            value = format_exposure(key, value).removesuffix(" s")
+        elif key == "iso":
+            value = int(round(value))
+        out[key] = value
+    return out
+
+
+def _record_rig(session, rig_config, devices, echo, exposure=None):
     """Rig, camera and nominal lights into the manifest (a resumed session keeps its camera)."""
     lights = rig_config.lights
     session.manifest["rig"].update({
@@ -265,11 +299,17 @@ def _record_rig(session, rig_config, devices, echo):
         "exposure": dict(rig_config.exposure), "frames": dict(rig_config.frames),
         "raw_format": rig_config.raw_format, "scene": dict(rig_config.scene or {})})
     info = _camera_record(devices.camera)
+    if exposure:  # the camera's own values, as read back after setting them
+        info["exposure"] = {key: {k: v for k, v in rec.items() if k != "display"}
+                            for key, rec in exposure.items()}
     old = session.manifest["camera"]
     if old and (old.get("model"), old.get("serial")) != (info["model"], info["serial"]):
         echo(f"capture: warning: {session.root} was begun with camera {old.get('model')} "
              f"#{old.get('serial')}; continuing with {info['model']} #{info['serial']}")
         info["earlier"] = old
+    if old and exposure and old.get("exposure") and old["exposure"] != info["exposure"]:
+        echo(f"capture: warning: {session.root} was begun with another exposure; the frames "
+             "record each their own")
     session.manifest["camera"] = info
     session.manifest["lights"].update({
         "source": "nominal", "origin": f"rig '{rig_config.name}' ({rig_config.source})",
@@ -457,7 +497,8 @@ def _capture_one(session, rig_config, devices, shot):
                            f"{image.size} bytes; not stored", shot.frame_id, shot.light)
     suffix = Path(image.filename).suffix.lower() or f".{rig_config.raw_format}"
     session.add_frame(shot.kind, image.data, light=shot.light, suffix=suffix, frame_id=shot.frame_id,
-                      save=False, exposure=dict(rig_config.exposure), captured_at=now_iso(),
+                      save=False, exposure=_frame_exposure(rig_config, devices.exposure),
+                      captured_at=now_iso(),
                       camera_file=image.filename, **shot.extra)
 
 

@@ -334,6 +334,25 @@ def _camera(check, data):
     return CameraConfig(camera)
 
 
+def _exposure(check, data):
+    """The ``exposure:`` section: shutter (s), iso, aperture (f-number), each parseable.
+
+    Values stay as written (e.g. '1/30'): the camera driver matches them to what it allows.
+    """
+    from rig.exposure import EXPOSURE_KEYS, parse_aperture, parse_iso, parse_shutter
+
+    exposure = check.value("exposure", _mapping, data)
+    parsers = dict(zip(EXPOSURE_KEYS, (parse_shutter, parse_iso, parse_aperture)))
+    for key, value in exposure.items():
+        if key not in parsers:
+            check.fail(f"exposure.{key}", f"unknown key (known: {', '.join(EXPOSURE_KEYS)})")
+        try:
+            parsers[key](value)
+        except ValueError as exc:
+            check.fail(f"exposure.{key}", str(exc).split(": ", 1)[-1])
+    return exposure
+
+
 def _rig(source, name, data, base_dir):
     check = _Checker(source, name)
     if not isinstance(data, dict):
@@ -348,7 +367,7 @@ def _rig(source, name, data, base_dir):
         name=name, source=str(source),
         lights=_lights(check, data["lights"], base_dir),
         camera=_camera(check, data["camera"]),
-        exposure=check.value("exposure", _mapping, data.get("exposure") or {}),
+        exposure=_exposure(check, data.get("exposure") or {}),
         frames=FramesConfig({**FramesConfig.DEFAULTS,
                              **check.section(data.get("frames") or {}, "frames", _FRAME_KEYS)}),
         raw_format=check.value("raw_format", _choice(*RAW_FORMATS), data.get("raw_format", "dng")),

@@ -44,6 +44,17 @@ __all__ = [
     "pack_nikon_events",
     "unpack_nikon_events",
     "format_for_filename",
+    "DataType",
+    "PropCode",
+    "FormFlag",
+    "DevicePropDesc",
+    "pack_value",
+    "unpack_value",
+    "pack_eos_prop_value",
+    "pack_eos_avail_list",
+    "pack_eos_set_prop",
+    "unpack_eos_set_prop",
+    "eos_prop_records",
 ]
 
 HEADER = struct.Struct("<IHHI")
@@ -162,6 +173,7 @@ class EventCode(IntEnum):
     EOS_ObjectRemoved = 0xC182
     EOS_RequestObjectTransfer = 0xC186
     EOS_PropValueChanged = 0xC189
+    EOS_AvailListChanged = 0xC18A
     NIKON_ObjectAddedInSDRAM = 0xC101
     NIKON_CaptureCompleteRecInSdram = 0xC102
 
@@ -493,3 +505,191 @@ def format_for_filename(name: str) -> int:
     """Object format code a camera would report for a file name (Undefined if unknown)."""
     suffix = name[name.rfind("."):].lower() if "." in name else ""
     return int(_FORMATS.get(suffix, ObjectFormat.Undefined))
+
+
+# -- device properties -------------------------------------------------------------------------
+# DevicePropDesc dataset (PTP 1.0, 5.5.3): u16 code, u16 datatype, u8 GetSet, factory default
+# value, current value, u8 FormFlag, then the form: a range (min, max, step) or an enumeration
+# (u16 count, values). Values are little-endian and as wide as their datatype.
+
+class DataType(IntEnum):
+    """PTP datatype codes of property values (PTP_DTC_*); arrays and 128-bit types omitted."""
+
+    INT8 = 0x0001
+    UINT8 = 0x0002
+    INT16 = 0x0003
+    UINT16 = 0x0004
+    INT32 = 0x0005
+    UINT32 = 0x0006
+    INT64 = 0x0007
+    UINT64 = 0x0008
+    STR = 0xFFFF
+
+
+_DT_FORMAT = {DataType.INT8: "b", DataType.UINT8: "B", DataType.INT16: "h",
+              DataType.UINT16: "H", DataType.INT32: "i", DataType.UINT32: "I",
+              DataType.INT64: "q", DataType.UINT64: "Q"}
+
+
+class PropCode(IntEnum):
+    """Device property codes of the exposure settings: PTP standard and Canon EOS."""
+
+    FNumber = 0x5007          # UINT16, f-number x 100
+    ExposureTime = 0x500D     # UINT32, units of 0.1 ms
+    ExposureIndex = 0x500F    # UINT16, ISO speed
+    EOS_Aperture = 0xD101     # Canon APEX-like code (see EOS_SCALES)
+    EOS_ShutterSpeed = 0xD102
+    EOS_ISOSpeed = 0xD103
+
+
+class FormFlag(IntEnum):
+    """DevicePropDesc FormFlag: which allowed-value form follows."""
+
+    NONE = 0x00
+    RANGE = 0x01
+    ENUMERATION = 0x02
+
+
+def _datatype(dtype) -> DataType:
+    try:
+        return DataType(dtype)
+    except ValueError:
+        raise PtpDecodeError(f"property datatype 0x{dtype:04X} is not supported") from None
+
+
+def pack_value(dtype: int, value) -> bytes:
+    """Encode one property value of PTP datatype ``dtype`` (an int, or a str for STR)."""
+    dtype = _datatype(dtype)
+    if dtype == DataType.STR:
+        return pack_string(str(value))
+    try:
+        return struct.pack("<" + _DT_FORMAT[dtype], int(value))
+    except struct.error:
+        raise ValueError(f"{value!r} does not fit PTP datatype {dtype.name}") from None
+
+
+def unpack_value(reader: Reader, dtype: int):
+    """Read one property value of datatype ``dtype`` from ``reader``."""
+    dtype = _datatype(dtype)
+    if dtype == DataType.STR:
+        return reader.string()
+    return reader._take(_DT_FORMAT[dtype])[0]
+
+
+@dataclass
+class DevicePropDesc:
+    """GetDevicePropDesc dataset.
+
+    Attributes
+    ----------
+    code, datatype : int
+    writable : bool
+        GetSet: the host may set the value (False, e.g., for the aperture of a manual lens).
+    factory, current : int or str
+    form : FormFlag
+    range : tuple (min, max, step) or None
+    values : list or None
+        The enumeration.
+    """
+
+    code: int
+    datatype: int
+    writable: bool
+    factory: object
+    current: object
+    form: int = FormFlag.NONE
+    range: tuple | None = None
+    values: list | None = None
+
+    def pack(self) -> bytes:
+        out = [struct.pack("<HHB", self.code, self.datatype, int(bool(self.writable))),
+               pack_value(self.datatype, self.factory), pack_value(self.datatype, self.current),
+               bytes([self.form])]
+        if self.form == FormFlag.RANGE:
+            out += [pack_value(self.datatype, v) for v in self.range]
+        elif self.form == FormFlag.ENUMERATION:
+            out.append(struct.pack("<H", len(self.values)))
+            out += [pack_value(self.datatype, v) for v in self.values]
+        return b"".join(out)
+
+    @classmethod
+    def unpack(cls, data) -> "DevicePropDesc":
+        r = Reader(data, "DevicePropDesc dataset")
+        code, dtype, getset = r.u16(), r.u16(), r.u8()
+        factory, current, form = unpack_value(r, dtype), unpack_value(r, dtype), r.u8()
+        desc = cls(code, dtype, bool(getset), factory, current, form)
+        if form == FormFlag.RANGE:
+            desc.range = tuple(unpack_value(r, dtype) for _ in range(3))
+        elif form == FormFlag.ENUMERATION:
+            desc.values = [unpack_value(r, dtype) for _ in range(r.u16())]
+        elif form != FormFlag.NONE:
+            raise PtpDecodeError(f"DevicePropDesc 0x{code:04X}: unknown FormFlag {form}")
+        return desc
+
+    def allows(self, value) -> bool:
+        """Whether the form admits ``value`` (no form: anything the datatype holds)."""
+        if self.form == FormFlag.ENUMERATION:
+            return value in self.values
+        if self.form == FormFlag.RANGE:
+            low, high, step = self.range
+            return low <= value <= high and (step <= 1 or (value - low) % step == 0)
+        return True
+
+
+# -- Canon EOS properties ------------------------------------------------------------------------
+# GetEvent records (libgphoto2 PTP_ece_Prop_*): PropValueChanged = size, type, u32 property,
+# u32 value; AvailListChanged = size, type, u32 property, u32 value type (3: 16-bit values),
+# u32 count, count x u32 values. SetDevicePropValueEx data = u32 size (12), u32 property,
+# u32 value.
+_EOS_DESC_U16 = 3
+
+
+def pack_eos_prop_value(code: int, value: int) -> tuple[int, bytes]:
+    """A PropValueChanged record for :func:`pack_eos_events`."""
+    return EventCode.EOS_PropValueChanged, struct.pack("<II", code, value)
+
+
+def pack_eos_avail_list(code: int, values) -> tuple[int, bytes]:
+    """An AvailListChanged record (allowed values of a property) for :func:`pack_eos_events`."""
+    values = list(values)
+    return EventCode.EOS_AvailListChanged, struct.pack(
+        f"<III{len(values)}I", code, _EOS_DESC_U16, len(values), *values)
+
+
+def pack_eos_set_prop(code: int, value: int) -> bytes:
+    """Data phase of EOS_SetDevicePropValueEx for a numeric property."""
+    return struct.pack("<III", 12, code, value)
+
+
+def unpack_eos_set_prop(data) -> tuple[int, int]:
+    """(property, value) from EOS_SetDevicePropValueEx data."""
+    r = Reader(data, "EOS SetDevicePropValueEx data")
+    size, code, value = r.u32(), r.u32(), r.u32()
+    if size != len(r.data):
+        raise PtpDecodeError(f"EOS SetDevicePropValueEx says {size} bytes, {len(r.data)} came")
+    return code, value
+
+
+def eos_prop_records(records) -> tuple[dict, dict]:
+    """Property values and allowed lists in unpacked GetEvent records.
+
+    Returns
+    -------
+    values : dict
+        property code -> current value (PropValueChanged records).
+    allowed : dict
+        property code -> list of allowed values (AvailListChanged records of 16-bit values).
+    """
+    values, allowed = {}, {}
+    for rec in records:
+        if isinstance(rec, EosObjectAdded):
+            continue
+        etype, payload = rec
+        if etype == EventCode.EOS_PropValueChanged and len(payload) >= 8:
+            code, value = struct.unpack_from("<II", payload)
+            values[code] = value
+        elif etype == EventCode.EOS_AvailListChanged and len(payload) >= 12:
+            code, dtype, count = struct.unpack_from("<III", payload)
+            if dtype == _EOS_DESC_U16 and len(payload) >= 12 + 4 * count:
+                allowed[code] = list(struct.unpack_from(f"<{count}I", payload, 12))
+    return values, allowed

@@ -20,6 +20,11 @@ The rig's ``scene:`` section may hold:
 ``distance``         near point lights at ``true direction * distance`` (pixels); default none
 ``exposure_seconds`` time each exposure takes, as a real shutter does (default 0)
 
+The rig's ``exposure:`` section is set on the simulated camera like on a real one; the sensor
+then collects light in proportion to the shutter time the camera was set to, relative to its
+factory default (1/30 s): 1/15 s doubles the signal (clipped at white). Without an
+``exposure:`` key nothing is set and the images are exactly those of earlier versions.
+
 Faults for tests are ``{name: count}`` (or the text ``"busy:2,garble:1@object_005"`` parsed by
 :func:`parse_faults`). Light faults: drop_reply, garble, err, interlock, ``light.disconnect``;
 camera faults: busy, timeout, truncated, session_open, claimed, no_event, new_folder,
@@ -308,9 +313,16 @@ class SimulatedRig:
         light = self.firmware.lit
         if self.settings["exposure_seconds"]:
             time.sleep(self.settings["exposure_seconds"])
+        scene, ambient = self.scenes["object" if self.scene == "dark" else self.scene], True
         if self.scene == "dark":
-            return self.scenes["object"].render_dng(None, ambient=False, shot=shot)
-        return self.scenes[self.scene].render_dng(light, shot=shot)
+            light, ambient = None, False
+        gain = self.backend.camera.exposure_gain()
+        if gain == 1.0:  # the factory shutter: bit-identical to the images before exposure control
+            return scene.render_dng(light, ambient=ambient, shot=shot)
+        # light collected scales with the shutter time; noise and clipping act on the result
+        linear = scene.render_linear(light, ambient=ambient) * np.float32(gain)
+        key = (0 if light is None else int(light) + 1, int(ambient), int(shot))
+        return scene.dng_from_mosaic(scene.mosaic_from_linear(linear, key=key))
 
     # -- ground truth --------------------------------------------------------------------------
     def write_truth(self, session):

@@ -26,6 +26,17 @@ detach, bulk and interrupt transfers. Two layers:
   ``new_folder``    the next generic capture first reports a new folder (an association
                     object) in an ObjectAdded event, as cameras do when they start a new DCIM
                     directory
+
+Exposure properties: ``generic`` and ``nikon`` cameras offer the PTP standard ExposureTime
+(0x500D, UINT32, 0.1 ms), FNumber (0x5007, UINT16, x 100) and ExposureIndex (0x500F, UINT16)
+through GetDevicePropDesc / GetDevicePropValue / SetDevicePropValue (host -> camera data phase);
+``canon`` cameras offer Aperture, ShutterSpeed and ISOSpeed (0xD101..0xD103) in Canon's stop
+codes through EOS_SetDevicePropValueEx, and report values (PropValueChanged) and allowed lists
+(AvailListChanged) in GetEvent records. Each property is an enumeration (1/2000..30 s in third
+stops, f/2.8..f/22, ISO 100..6400); a value outside it is answered InvalidDevicePropValue
+(0x201C), a property the camera lacks (:meth:`SimulatedPtpCamera.remove_property`)
+DevicePropNotSupported (0x200A). :meth:`SimulatedPtpCamera.exposure_gain` is the set shutter
+time relative to the factory default (1/30 s), which the simulated rig applies to the signal.
 """
 
 from __future__ import annotations
@@ -41,11 +52,11 @@ from types import SimpleNamespace
 import usb.backend
 from usb.core import USBError, USBTimeoutError
 
-from rig import ptp
+from rig import exposure as exposure_values, ptp
 from rig.ptp import EventCode, OperationCode as Op, ResponseCode as RC
 
-__all__ = ["SimObject", "SimulatedPtpCamera", "SimulatedUsbBackend", "make_backend",
-           "FAULT_KINDS", "BEHAVIOURS"]
+__all__ = ["SimObject", "SimProp", "SimulatedPtpCamera", "SimulatedUsbBackend", "make_backend",
+           "FAULT_KINDS", "BEHAVIOURS", "DATA_OUT_OPS", "REFERENCE_SHUTTER"]
 
 FAULT_KINDS = ("busy", "timeout", "disconnect", "truncated", "session_open", "claimed",
                "no_event", "kernel_driver", "new_folder", "stale_response")
@@ -61,14 +72,25 @@ _PREFIX = {"generic": "IMG_", "canon": "IMG_", "nikon": "DSC_"}
 
 _COMMON_OPS = [Op.GetDeviceInfo, Op.OpenSession, Op.CloseSession, Op.GetStorageIDs,
                Op.GetObjectHandles, Op.GetObjectInfo, Op.GetObject, Op.DeleteObject]
+_PROP_OPS = [Op.GetDevicePropDesc, Op.GetDevicePropValue, Op.SetDevicePropValue]
 _OPS = {
-    "generic": _COMMON_OPS + [Op.InitiateCapture],
+    "generic": _COMMON_OPS + _PROP_OPS + [Op.InitiateCapture],
     "canon": _COMMON_OPS + [Op.EOS_SetRemoteMode, Op.EOS_SetEventMode, Op.EOS_GetEvent,
                             Op.EOS_RemoteReleaseOn, Op.EOS_RemoteReleaseOff,
-                            Op.EOS_TransferComplete, Op.EOS_KeepDeviceOn],
-    "nikon": _COMMON_OPS + [Op.InitiateCapture, Op.NIKON_InitiateCaptureRecInSdram,
-                            Op.NIKON_GetEvent, Op.NIKON_DeviceReady],
+                            Op.EOS_TransferComplete, Op.EOS_KeepDeviceOn,
+                            Op.EOS_SetDevicePropValueEx],
+    "nikon": _COMMON_OPS + _PROP_OPS + [Op.InitiateCapture, Op.NIKON_InitiateCaptureRecInSdram,
+                                        Op.NIKON_GetEvent, Op.NIKON_DeviceReady],
 }
+#: operations whose data phase goes host -> camera
+DATA_OUT_OPS = frozenset({Op.SetDevicePropValue, Op.EOS_SetDevicePropValueEx})
+_PropCode = ptp.PropCode
+# nominal ranges of a mid-range body with a zoom lens
+_SHUTTERS = [v for v in exposure_values.NOMINAL_SERIES["shutter"] if 1 / 2000 - 1e-9 <= v <= 30]
+_APERTURES = [v for v in exposure_values.NOMINAL_SERIES["aperture"] if 2.8 <= v <= 22]
+_ISOS = [v for v in exposure_values.NOMINAL_SERIES["iso"] if 100 <= v <= 6400]
+REFERENCE_SHUTTER = 1 / 30
+"""Factory-default shutter time (s): the exposure at which the simulated rig renders as before."""
 _VENDOR_EXT = {"generic": 0, "canon": ptp.VendorExtension.CANON,
                "nikon": ptp.VendorExtension.NIKON}
 _MAKER = {"generic": ("psrig", "Simulated PTP camera"), "canon": ("Canon Inc.", "Canon EOS SIM"),
@@ -82,6 +104,54 @@ class SimObject:
     data: bytes
     filename: str
     object_format: int
+
+
+@dataclass
+class SimProp:
+    """One device property of the simulated camera: an enumeration of allowed values.
+
+    ``refused`` holds listed values the camera still answers InvalidDevicePropValue to, as a
+    body does when its mode narrows the list after the host read it.
+    """
+
+    datatype: int
+    values: list
+    current: int
+    factory: int | None = None
+    writable: bool = True
+    refused: tuple = ()
+
+    def __post_init__(self):
+        if self.factory is None:
+            self.factory = self.current
+
+    def desc(self, code) -> ptp.DevicePropDesc:
+        return ptp.DevicePropDesc(code, self.datatype, self.writable, self.factory, self.current,
+                                  ptp.FormFlag.ENUMERATION, values=list(self.values))
+
+
+def _standard_props() -> dict:
+    shutter = [int(round(v * 1e4)) for v in _SHUTTERS]
+    return {
+        _PropCode.ExposureTime: SimProp(ptp.DataType.UINT32, shutter,
+                                        int(round(REFERENCE_SHUTTER * 1e4))),
+        _PropCode.FNumber: SimProp(ptp.DataType.UINT16, [int(round(v * 100)) for v in _APERTURES],
+                                   800),
+        _PropCode.ExposureIndex: SimProp(ptp.DataType.UINT16, list(_ISOS), 100),
+    }
+
+
+def _eos_props() -> dict:
+    def codes(key, values):
+        return [exposure_values.eos_encode(key, v) for v in values]
+    return {
+        _PropCode.EOS_ShutterSpeed: SimProp(ptp.DataType.UINT16, codes("shutter", _SHUTTERS),
+                                            exposure_values.eos_encode("shutter", REFERENCE_SHUTTER)),
+        _PropCode.EOS_Aperture: SimProp(ptp.DataType.UINT16, codes("aperture", _APERTURES),
+                                        exposure_values.eos_encode("aperture", 8)),
+        _PropCode.EOS_ISOSpeed: SimProp(ptp.DataType.UINT16, codes("iso", _ISOS),
+                                        exposure_values.eos_encode("iso", 100)),
+    }
 
 
 class _Faults:
@@ -133,7 +203,8 @@ class SimulatedPtpCamera:
         self.events: deque = deque()      # packed event containers for the interrupt endpoint
         self.session_id = None
         self.remote_mode = self.event_mode = 0
-        self._eos_pending: list = [(EventCode.EOS_PropValueChanged, b"\x01\xd1\x00\x00")]
+        self.props: dict[int, SimProp] = _eos_props() if behaviour == "canon" else _standard_props()
+        self._eos_pending: list = self._eos_state()
         self._eos_hold = 0
         self._nikon_pending: list = []
         self._nikon_busy = 0
@@ -143,6 +214,40 @@ class SimulatedPtpCamera:
         """PTP Device Reset class request / power cycle: session closed, pending I/O dropped."""
         self.session_id = None
         self.events.clear()
+        if self.behaviour == "canon":  # the next GetEvent dumps the whole state again
+            self._eos_pending += self._eos_state()
+
+    # -- exposure properties -------------------------------------------------------------------
+    def _eos_state(self) -> list:
+        """GetEvent records of every property: its allowed list, then its value."""
+        if self.behaviour != "canon":
+            return []
+        return [rec for code, prop in self.props.items()
+                for rec in (ptp.pack_eos_avail_list(code, prop.values),
+                            ptp.pack_eos_prop_value(code, prop.current))]
+
+    def remove_property(self, code: int):
+        """Make the camera lack a property (e.g. FNumber on a manual lens)."""
+        self.props.pop(code, None)
+
+    def shutter_seconds(self) -> float:
+        """The shutter time now set (s)."""
+        if self.behaviour == "canon":
+            prop = self.props.get(_PropCode.EOS_ShutterSpeed)
+            return REFERENCE_SHUTTER if prop is None else exposure_values.eos_decode("shutter", prop.current)
+        prop = self.props.get(_PropCode.ExposureTime)
+        return REFERENCE_SHUTTER if prop is None else prop.current / 1e4
+
+    def exposure_gain(self) -> float:
+        """Set shutter time over the factory default's: the factor on the collected light."""
+        code = _PropCode.EOS_ShutterSpeed if self.behaviour == "canon" else _PropCode.ExposureTime
+        prop = self.props.get(code)
+        if prop is None or prop.current == prop.factory:
+            return 1.0
+        if self.behaviour == "canon":
+            return (exposure_values.eos_decode("shutter", prop.current)
+                    / exposure_values.eos_decode("shutter", prop.factory))
+        return prop.current / prop.factory
 
     def device_info(self) -> ptp.DeviceInfo:
         maker, model = _MAKER[self.behaviour]
@@ -153,10 +258,14 @@ class SimulatedPtpCamera:
             events=[EventCode.ObjectAdded, EventCode.CaptureComplete],
             capture_formats=[ptp.format_for_filename(self.filename_ext)],
             image_formats=[ptp.format_for_filename(self.filename_ext)],
+            device_properties=[int(c) for c in self.props],
             manufacturer=maker, model=model, device_version="1.0", serial_number=self.serial)
 
-    def execute(self, code: int, tid: int, params: tuple):
-        """Run one operation: returns (data bytes or None, response code, response params)."""
+    def execute(self, code: int, tid: int, params: tuple, data: bytes | None = None):
+        """Run one operation: returns (data bytes or None, response code, response params).
+
+        ``data`` is the host's data phase of the operations in :data:`DATA_OUT_OPS`.
+        """
         if self.faults.take("busy", code):
             return None, RC.DeviceBusy, ()
         if code not in _OPS[self.behaviour]:
@@ -167,6 +276,8 @@ class SimulatedPtpCamera:
         handler = getattr(self, "_op_" + Op(code).name, None)
         if handler is None:
             return None, RC.OK, ()
+        if code in DATA_OUT_OPS:
+            return handler(tid, *params, data=data)
         return handler(tid, *params)
 
     # -- standard operations -------------------------------------------------------------
@@ -209,6 +320,33 @@ class SimulatedPtpCamera:
         if self.faults.take("truncated"):
             data = data[:len(data) * 2 // 3]
         return data, RC.OK, ()
+
+    def _op_GetDevicePropDesc(self, tid, code=0, *_):
+        prop = self.props.get(code)
+        if prop is None:
+            return None, RC.DevicePropNotSupported, ()
+        return prop.desc(code).pack(), RC.OK, ()
+
+    def _op_GetDevicePropValue(self, tid, code=0, *_):
+        prop = self.props.get(code)
+        if prop is None:
+            return None, RC.DevicePropNotSupported, ()
+        return ptp.pack_value(prop.datatype, prop.current), RC.OK, ()
+
+    def _op_SetDevicePropValue(self, tid, code=0, *_, data=None):
+        prop = self.props.get(code)
+        if prop is None:
+            return None, RC.DevicePropNotSupported, ()
+        try:
+            value = ptp.unpack_value(ptp.Reader(data or b""), prop.datatype)
+        except ptp.PtpDecodeError:
+            return None, RC.InvalidDevicePropFormat, ()
+        if not prop.writable:
+            return None, RC.AccessDenied, ()
+        if value not in prop.values or value in prop.refused:
+            return None, RC.InvalidDevicePropValue, ()
+        prop.current = value
+        return None, RC.OK, ()
 
     def _op_DeleteObject(self, tid, handle=0, *_):
         if self.objects.pop(handle, None) is None:
@@ -259,6 +397,20 @@ class SimulatedPtpCamera:
                     handle, STORAGE_ID, obj.object_format, len(obj.data), 0x00100000,
                     obj.filename))
                 self._eos_hold = 1  # the first poll after release finds nothing: exposure
+        return None, RC.OK, ()
+
+    def _op_EOS_SetDevicePropValueEx(self, tid, *_, data=None):
+        try:
+            code, value = ptp.unpack_eos_set_prop(data or b"")
+        except ptp.PtpDecodeError:
+            return None, RC.InvalidDevicePropFormat, ()
+        prop = self.props.get(code)
+        if prop is None:
+            return None, RC.DevicePropNotSupported, ()
+        if value not in prop.values or value in prop.refused:
+            return None, RC.InvalidDevicePropValue, ()
+        prop.current = value
+        self._eos_pending.append(ptp.pack_eos_prop_value(code, value))
         return None, RC.OK, ()
 
     def _op_EOS_GetEvent(self, tid, *_):
@@ -356,6 +508,7 @@ class SimulatedUsbBackend(usb.backend.IBackend):
         self.resets = 0
         self.send_zlp = True  # False: firmware that omits ZLPs after full-packet transfers
         self._in: deque = deque()
+        self._out = None   # (command, bytes so far) while a host -> camera data phase arrives
         self._dev_id = SimpleNamespace(name="sim-ptp")
 
     # -- test controls ------------------------------------------------------------------------
@@ -384,6 +537,7 @@ class SimulatedUsbBackend(usb.backend.IBackend):
         self.connected = True
         self.claimed = False
         self._in.clear()
+        self._out = None
         self.camera.reset()
 
     def _alive(self):
@@ -393,6 +547,7 @@ class SimulatedUsbBackend(usb.backend.IBackend):
     def _disconnect(self):
         self.connected = False
         self._in.clear()
+        self._out = None
         self.camera.reset()
         raise _usb_error("No such device (it may have been disconnected)", -4, errno.ENODEV)
 
@@ -483,6 +638,7 @@ class SimulatedUsbBackend(usb.backend.IBackend):
         if bmRequestType == 0x21 and bRequest == 0x66:   # PTP Device Reset Request
             self.resets += 1
             self._in.clear()
+            self._out = None
             self.camera.reset()
             return 0
         if bmRequestType == 0xA1 and bRequest == 0x67:   # PTP Get Device Status
@@ -500,13 +656,36 @@ class SimulatedUsbBackend(usb.backend.IBackend):
     def bulk_write(self, dev_handle, ep, intf, data, timeout):
         self._alive()
         self._check_claimed()
-        cmd = ptp.unpack_container(memoryview(data).cast("B"))
+        written = len(data) * data.itemsize
+        raw = bytes(memoryview(data).cast("B"))
+        if self._out is not None:  # the data phase of the pending host -> camera operation
+            cmd, got = self._out
+            got += raw
+            if len(got) < ptp.HEADER.size or len(got) < ptp.unpack_header(got)[0]:
+                self._out = (cmd, got)
+                return written
+            self._out = None
+            phase = ptp.unpack_container(got)
+            if phase.type != ptp.ContainerType.DATA or phase.transaction_id != cmd.transaction_id:
+                raise _usb_error("Pipe error", -9, errno.EPIPE)
+            self._run(cmd, phase.payload)
+            return written
+        cmd = ptp.unpack_container(raw)
         if cmd.type != ptp.ContainerType.COMMAND:
             raise _usb_error("Pipe error", -9, errno.EPIPE)
+        if cmd.code in DATA_OUT_OPS:
+            self._out = (cmd, b"")
+            return written
+        self._run(cmd, None)
+        return written
+
+    def _run(self, cmd, out):
+        """Execute a command (with the host's data phase ``out``) and queue its IN transfers."""
         if self.faults.take("stale_response", cmd.code):
             self._in.append(_InTransfer([ptp.pack_response(RC.OK, cmd.transaction_id - 1)],
                                         cmd.code))
-        payload, code, params = self.camera.execute(cmd.code, cmd.transaction_id, cmd.params)
+        payload, code, params = self.camera.execute(cmd.code, cmd.transaction_id, cmd.params,
+                                                    out)
         if payload is not None:
             t = _InTransfer([ptp.pack_data_header(cmd.code, cmd.transaction_id, len(payload)),
                              payload], cmd.code)
@@ -515,7 +694,6 @@ class SimulatedUsbBackend(usb.backend.IBackend):
             self._in.append(t)
         self._in.append(_InTransfer([ptp.pack_response(code, cmd.transaction_id, params)],
                                     cmd.code))
-        return len(data) * data.itemsize
 
     def bulk_read(self, dev_handle, ep, intf, buff, timeout):
         self._alive()
