@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy import ndimage, optimize, special
+from scipy import ndimage, optimize
 
 from pipeline.errors import InputError
 
@@ -123,29 +123,25 @@ def _fit_sigma(x, y, c, w):
     return np.sqrt(np.clip(np.diag(cov), 0, None))
 
 
-def _outer_crossing(prof, off, lo, hi, inner, level):
-    """Offset (rays,) of the outermost crossing of ``level`` of the way from ``lo`` (inside) to
-    ``hi`` (outside) within ``inner`` of the circle, and whether one was found."""
-    step = off[1] - off[0]
-    target = lo + level * (hi - lo)
-    inside = (np.sign(hi - lo)[:, None] * (prof - target[:, None]) <= 0) & (np.abs(off) < inner)
-    found = inside.any(axis=1)
-    idx = np.clip(inside.shape[1] - 1 - np.argmax(inside[:, ::-1], axis=1), 0, len(off) - 2)
-    rows = np.arange(len(prof))
-    p0, p1 = prof[rows, idx], prof[rows, idx + 1]
-    t = np.clip((target - p0) / np.where(p1 == p0, 1e-12, p1 - p0), 0, 1)
-    return off[idx] + t * step, found & (idx < len(off) - 2)
+def _radial_edges(image, c, band, *, rays=720):
+    """Sub-pixel outline points at the steepest step along rays from the centre.
 
+    On each ray the edge is the steepest rise toward the background (the sign from the medians
+    inside and outside) within ``band[0]`` of the circle, refined by a parabola through the
+    derivative's peak: the classic edge, where a blurred step has its inflection whatever the
+    blur. Crossing levels set between the inside and the background instead move with the
+    limb: a chrome limb mirrors the background behind the sphere and fades into it, so the
+    levelled crossings slide inward or outward with how bright that reflection is, frame by
+    frame and side by side.
 
-def _radial_edges(image, c, band, *, rays=720, levels=(0.7, 0.85)):
-    """Sub-pixel outline points along rays from the centre.
-
-    On each ray the profile is levelled between the inside (median over ``band`` pixels
-    inside) and the background outside. A chrome sphere's limb mirrors the background behind
-    it, so the transition is soft inside and sharp only at its outer end: the outline is where
-    that outer shoulder would reach half way, found from the outermost crossings of two levels
-    as a blurred step (erf) would have them: x_half = x_hi - z_hi (x_hi - x_lo) / (z_hi - z_lo),
-    z the normal quantiles of the levels. On a plain blurred step this is the 50 % crossing.
+    Returns
+    -------
+    x, y : ndarray (rays,)
+        Outline points, pixels.
+    ok : ndarray (rays,) bool
+        Rays with a rising step.
+    contrast : ndarray (rays,)
+        |outside - inside|.
     """
     inner, outer = band
     step = 0.25
@@ -156,12 +152,14 @@ def _radial_edges(image, c, band, *, rays=720, levels=(0.7, 0.85)):
     prof = ndimage.map_coordinates(image, [ys, xs], order=1, mode="nearest")
     lo = np.median(prof[:, off <= -inner], axis=1)
     hi = np.median(prof[:, off >= inner], axis=1)
-    x_lo, ok_lo = _outer_crossing(prof, off, lo, hi, inner, levels[0])
-    x_hi, ok_hi = _outer_crossing(prof, off, lo, hi, inner, levels[1])
-    z_lo, z_hi = special.ndtri(levels[0]), special.ndtri(levels[1])
-    width = np.clip(x_hi - x_lo, 0, None)
-    radius = c[2] + x_hi - z_hi * width / (z_hi - z_lo)
-    return c[0] + np.cos(theta) * radius, c[1] + np.sin(theta) * radius, ok_lo & ok_hi, np.abs(hi - lo)
+    slope = np.sign(hi - lo)[:, None] * np.gradient(prof, step, axis=1)
+    idx = np.clip(np.argmax(np.where(np.abs(off) < inner, slope, -np.inf), axis=1), 1, len(off) - 2)
+    rows = np.arange(rays)
+    g0, g1, g2 = slope[rows, idx - 1], slope[rows, idx], slope[rows, idx + 1]
+    curv = g0 - 2 * g1 + g2
+    shift = np.where(curv < 0, 0.5 * (g0 - g2) / np.where(curv < 0, curv, -1.0), 0.0)
+    radius = c[2] + off[idx] + np.clip(shift, -1, 1) * step
+    return c[0] + np.cos(theta) * radius, c[1] + np.sin(theta) * radius, g1 > 0, np.abs(hi - lo)
 
 
 def refine_circle(image, circle, *, passes=3):

@@ -9,13 +9,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["Blob", "highlight_blob", "saturation_level", "HALF", "RIM", "MAX_SATURATED"]
+__all__ = ["Blob", "highlight_blob", "saturation_level", "spatial_median", "robust_centre", "HALF", "RIM",
+           "MAX_SATURATED", "TUKEY_C"]
 
 HALF = 0.5            # blob = pixels above this fraction of the frame's highlight peak
 RIM = 0.96            # highlight beyond this fraction of the radius: normal too oblique to trust
 MAX_SATURATED = 0.015 # saturated blob larger than this fraction of the disc: overexposed
 SHOULDER = 0.5       # clipped highlights: weights ramp from this fraction of the clip level
 SECOND = 0.25         # a second blob this large (relative to the main one) means two highlights
+TUKEY_C = 4.685       # Tukey biweight cut-off in robust sigmas: the standard 95 % Gaussian efficiency
+MEDIAN_RADIUS = 1.1774  # median distance from the centre of a 2-D Gaussian, in sigmas: sqrt(2 ln 2)
 
 
 @dataclass
@@ -29,7 +32,8 @@ class Blob:
     weights : ndarray (N,)
         Intensity weights (signal above the blob threshold).
     x, y : float
-        Intensity-weighted centroid, pixels (x = column, y = row); NaN when none.
+        Intensity-weighted robust centre (:func:`robust_centre`), pixels (x = column,
+        y = row); NaN when none.
     sigma : float
         Standard error of the centroid, pixels.
     flag : str or None
@@ -52,6 +56,79 @@ def saturation_level(images):
     top = float(np.max(images))
     clipped = np.count_nonzero(images >= top * 0.999)
     return top * 0.98 if clipped > 4 * images.shape[0] else np.inf
+
+
+def spatial_median(points, weights, *, iterations=100, tol=1e-10):
+    """Weighted spatial (geometric) median of ``points`` (N, D) by Weiszfeld's iteration, (D,).
+
+    The point minimising the weighted sum of Euclidean distances. On a symmetric blob it is the
+    centroid; unlike the centroid, a minority of pixels on one side (a lens-flare streak, a
+    scratch or a colour fringe joined to a clipped highlight) moves it by a bounded amount
+    instead of in proportion to their mass (breakdown point 50 %).
+
+    Parameters
+    ----------
+    points : ndarray (N, D)
+    weights : ndarray (N,)
+        Non-negative weights, not all zero.
+    """
+    points = np.asarray(points, float)
+    weights = np.asarray(weights, float)
+    m = (points * weights[:, None]).sum(0) / weights.sum()
+    for _ in range(iterations):
+        dist = np.linalg.norm(points - m, axis=1)
+        # a point on the current estimate would divide by zero: floor its distance (the
+        # modified Weiszfeld step; the floor is far below the pixel or direction scale)
+        q = weights / np.maximum(dist, 1e-9 * max(float(dist.max()), 1e-30))
+        new = (points * q[:, None]).sum(0) / q.sum()
+        if np.abs(new - m).max() < tol:
+            return new
+        m = new
+    return m
+
+
+def _weighted_median(values, weights):
+    order = np.argsort(values)
+    cum = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
+
+
+def robust_centre(points, weights, *, iterations=50, tol=1e-12):
+    """Centre (D,) of a weighted point cloud (N, D) that a minority of far points cannot drag.
+
+    A Tukey-biweight M-estimate of location started from the :func:`spatial_median`: points
+    farther than ``TUKEY_C`` robust sigmas from the centre get no weight, nearer ones a smooth
+    weight, the sigma being the weighted median distance over ``MEDIAN_RADIUS`` (its value for a
+    2-D Gaussian). A compact highlight lies wholly within the cut-off, so its centre stays the
+    (nearly) weighted mean with its sub-pixel precision; a flare streak or a scratch joined to
+    a clipped highlight reaches past it and is let go.
+
+    Parameters
+    ----------
+    points : ndarray (N, D)
+        Pixel positions or mirror directions.
+    weights : ndarray (N,)
+        Non-negative weights, not all zero.
+
+    Returns
+    -------
+    ndarray (D,)
+    """
+    points = np.asarray(points, float)
+    weights = np.asarray(weights, float)
+    m = spatial_median(points, weights)
+    for _ in range(iterations):
+        dist = np.linalg.norm(points - m, axis=1)
+        scale = _weighted_median(dist, weights) / MEDIAN_RADIUS
+        if scale <= 0:
+            return m
+        u = dist / (TUKEY_C * scale)
+        w = weights * np.where(u < 1, (1 - u ** 2) ** 2, 0.0)
+        new = (points * w[:, None]).sum(0) / w.sum()
+        if np.abs(new - m).max() < tol:
+            return new
+        m = new
+    return m
 
 
 def _empty(flag):
@@ -91,8 +168,7 @@ def highlight_blob(frame, background, disc, saturated, *, radius, centre):
     if saturated[rows, cols].any():
         rows, cols, weights = _clipped_top(signal, saturated & disc, rows, cols)
     total = weights.sum()
-    x = float((weights * cols).sum() / total)
-    y = float((weights * rows).sum() / total)
+    x, y = map(float, robust_centre(np.c_[cols, rows], weights))
     spread = np.sqrt((weights * ((cols - x) ** 2 + (rows - y) ** 2)).sum() / total)
     n_eff = total ** 2 / max((weights ** 2).sum(), 1e-30)
     sigma = float(spread / np.sqrt(max(n_eff, 1.0)) + 0.05)

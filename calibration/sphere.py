@@ -14,7 +14,7 @@ from pipeline.errors import InputError, PsrigError
 
 from .circle import Circle, SphereNotFound, circle_from_mask, find_spheres, sphere_image
 from .geometry import check_K, mirror, sphere_centre, sphere_points
-from .highlight import highlight_blob, saturation_level
+from .highlight import highlight_blob, robust_centre, saturation_level
 from .kinds import sphere_kind
 from .positions import frame_offset, near_decision, triangulate
 
@@ -99,11 +99,19 @@ class SphereCalibration:
 
 
 def _grey(images):
+    """Grey frames (K, H, W), and the per-pixel maximum and minimum over the colour channels."""
     images = np.asarray(images, dtype=np.float32)
     if images.ndim == 4:
-        return images.mean(axis=-1), images.max(axis=-1)
+        # channel by channel: numpy reduces a short last axis several times slower
+        channels = [images[..., i] for i in range(images.shape[-1])]
+        grey, peak, floor = channels[0].copy(), channels[0].copy(), channels[0].copy()
+        for ch in channels[1:]:
+            grey += ch
+            np.maximum(peak, ch, out=peak)
+            np.minimum(floor, ch, out=floor)
+        return grey / len(channels), peak, floor
     if images.ndim == 3:
-        return images, images
+        return images, images, images
     raise InputError(f"sphere images must be (K, H, W) or (K, H, W, C), got shape {images.shape}")
 
 
@@ -161,9 +169,10 @@ def _one_sphere(grey, peak, sat, circ, mask, K):
             continue
         normals, views, _ = sphere_points(blob.cols, blob.rows, circ.params, K)
         ok = np.isfinite(normals).all(-1)
-        # averaging mirror directions, not pixels, keeps the centre unbiased where the sphere
-        # foreshortens the lobe
-        d = (mirror(normals[ok], views[ok]) * blob.weights[ok, None]).sum(0)
+        # the centre of mirror directions, not of pixels, stays unbiased where the sphere
+        # foreshortens the lobe; a robust centre, not a mean, so a flare streak or a scratch
+        # joined to the highlight does not pull it along
+        d = robust_centre(mirror(normals[ok], views[ok]), blob.weights[ok])
         dirs[k] = d / np.linalg.norm(d)
         spots[k] = blob.x, blob.y
         unc[k] = _uncertainty(blob, circ, K, dirs[k])
@@ -215,10 +224,13 @@ def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None,
     SphereNotFound
         No sphere, or no chrome sphere among those found.
     """
-    grey, peak = _grey(images)
+    grey, peak, floor = _grey(images)
     K = check_K(K)
     if saturation is None:
-        sat = peak >= saturation_level(peak)
+        # clipped where every channel is: a white light's highlight clips in all of them, while
+        # a pixel clipped in one channel only is a coloured fringe (chromatic aberration, flare,
+        # JPEG chroma subsampling) that would drag the clipped core off centre
+        sat = floor >= saturation_level(peak)
     else:
         sat = np.asarray(saturation, bool)
         if sat.shape != grey.shape:

@@ -38,7 +38,8 @@ def test_finds_and_classifies_every_sphere(directional):
     truth = [np.array(c) for c, kind in zip(scene.circles, scene.sphere_kinds) if kind == "chrome"]
     truth += [np.array(c) for c, kind in zip(scene.circles, scene.sphere_kinds) if kind == "matte"]
     for got, want in zip(found, truth):
-        assert np.abs(got - want).max() < 0.5  # measured: 0.36 px (chrome radius, low)
+        # measured: 0.21 px (radius, low); levelled edge crossings gave 0.40 px
+        assert np.abs(got - want).max() < 0.3
 
 
 def test_directions_meet_issue_target(directional):
