@@ -9,7 +9,8 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_path", "fsync_dir"]
+__all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_path", "fsync_dir",
+           "atomic_write_begin", "atomic_commit", "discard_temp", "sweep_temps"]
 
 
 def _umask():
@@ -41,10 +42,7 @@ def atomic_path(path):
     untouched.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
-    # mkstemp creates 0600; session files are ordinary files, readable as the umask allows.
-    os.fchmod(fd, 0o666 & ~_umask())
+    fd, tmp = _temp_beside(path)
     os.close(fd)
     try:
         yield Path(tmp)
@@ -58,6 +56,61 @@ def atomic_path(path):
         raise
 
 
+def _temp_beside(path):
+    """(open fd, name) of a new temporary file beside ``path`` (folder created if needed)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    # mkstemp creates 0600; session files are ordinary files, readable as the umask allows.
+    os.fchmod(fd, 0o666 & ~_umask())
+    return fd, tmp
+
+
+def atomic_write_begin(path, data):
+    """First half of an atomic write: ``data`` (bytes-like) into a new temporary file beside
+    ``path``, not yet synced; ``path`` is untouched.
+
+    The second half, :func:`atomic_commit` (fsync, rename, fsync of the folder), may run later
+    and in another thread or process, so that one writer goes on computing while the disk
+    catches up. Give up with :func:`discard_temp`.
+
+    Returns
+    -------
+    Path
+        The temporary file (removed again if writing fails).
+    """
+    path = Path(path)
+    fd, tmp = _temp_beside(path)
+    try:
+        with open(fd, "wb", closefd=True) as fh:
+            fh.write(data)
+    except BaseException:
+        discard_temp(tmp)
+        raise
+    return Path(tmp)
+
+
+def atomic_commit(tmp, path):
+    """Second half of an atomic write: fsync ``tmp``, rename it onto ``path``, fsync the folder.
+
+    On any failure ``tmp`` is removed and ``path`` keeps its old content (or stays absent).
+    """
+    path = Path(path)
+    try:
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+        fsync_dir(path.parent)
+    except BaseException:
+        discard_temp(tmp)
+        raise
+
+
+def discard_temp(tmp):
+    """Remove a temporary file of :func:`atomic_write_begin` (no error if already gone)."""
+    with contextlib.suppress(OSError):
+        os.unlink(tmp)
+
+
 def atomic_write_bytes(path, data):
     """Write ``data`` (bytes) to ``path`` atomically."""
     with atomic_path(path) as tmp:
@@ -68,3 +121,19 @@ def atomic_write_bytes(path, data):
 def atomic_write_text(path, text):
     """Write ``text`` (str, UTF-8) to ``path`` atomically."""
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def sweep_temps(folder):
+    """Remove temporary files an interrupted atomic write left in ``folder``; return their names.
+
+    Only names of the form :func:`atomic_path` creates (``.<stem>.<random>.tmp<suffix>``) are
+    removed, never a finished file. Call it only while no other writer works in ``folder``.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    stale = [p for p in folder.glob(".*.tmp*") if p.is_file() and ".tmp" in p.name[1:]]
+    for path in stale:
+        discard_temp(path)
+    return sorted(p.name for p in stale)
+

@@ -8,13 +8,19 @@ missing or stale. Raw files are only read.
 
 Defaults: the unbiased ``mosaic`` path at full size (``binning=1``, bilinear demosaic, which is
 linear and unbiased away from sharp edges). ``binning=2`` interpolates nothing and is faster
-(12 MP frame: decode 0.20 s either way, but a quarter of the output to write: 0.23 s against
-0.74 s; benchmarks/decode.py) at half the resolution.
+at half the resolution (a quarter of the output to write and hash).
 
-With ``jobs`` > 1 the frames are decoded in a ``forkserver`` process pool; like any
-multiprocessing code, a calling script needs an ``if __name__ == "__main__":`` guard.
+With ``jobs`` > 1 the frames are decoded in a ``forkserver`` process pool (one pool for the
+reference frames and the lit frames); like any multiprocessing code, a calling script needs an
+``if __name__ == "__main__":`` guard. Workers demosaic straight into the bytes of the output EXR,
+hash what they write and leave the fsync-and-rename of each file to threads of this process
+(:mod:`pipeline.decode_pool`), so the stage record's hashes come without reading any output
+back. 12 MP frames, 2 cores, jobs 2 (benchmarks/decode.py, load average about 2): about
+0.2 s per frame at full size, CPU about 0.28 s per frame (decode 0.15, sha256 0.08).
 """
 
+import contextlib
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -22,7 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from .decode_one import check_options, decode_frame, frame_size
-from .decode_pool import run_tasks
+from .atomic import sweep_temps
+from .decode_pool import prepare_pool, run_tasks, start_pool
 from .errors import InputError, PsrigError, StageError
 from .imageio import read_image, read_mask
 
@@ -112,7 +119,9 @@ class _Run:
         self.session, self.params, self.inputs, self.sizes = session, params, inputs, sizes
         self.failed, self.previous, self.jobs, self.show = failed, previous, jobs, show
         self.infos = {}
+        self.hashes = {}  # {output rel: sha256} of every output of a frame in infos
         self.tasks = []
+        self.pool = None
 
     def decode(self, frames, reference=None, reference_ids=None):
         """Decode the frames whose outputs are not reusable; collect infos and failures."""
@@ -124,6 +133,9 @@ class _Run:
         for frame in frames:
             if _reusable(self.session, self.previous, self.params, self.inputs, frame, reference_ids):
                 self.infos[frame["id"]] = self.previous.get("frames", {}).get(frame["id"], {})
+                for path in (self.session.linear_path(frame), self.session.saturation_path(frame)):
+                    rel = self.session.rel(path)
+                    self.hashes[rel] = self.previous["outputs"][rel]
             else:
                 self.tasks.append(_task(self.session, frame, dict(self.params),
                                         self.sizes[frame["id"]], reference))
@@ -132,11 +144,30 @@ class _Run:
         tasks, self.tasks = self.tasks, []
         if not tasks:
             return
-        for frame_id, (info, error) in run_tasks(tasks, jobs=self.jobs, show=self.show).items():
+        results = run_tasks(tasks, jobs=self.jobs, show=self.show, pool=self._pool(len(tasks)))
+        for frame_id, (info, error, hashes) in results.items():
             if error:
                 self.failed[frame_id] = error
             else:
                 self.infos[frame_id] = info
+                self.hashes.update({self.session.rel(path): digest
+                                    for path, digest in hashes.items()})
+            if error and error.startswith("decoder crashed"):
+                self.close()  # a crashed worker breaks its pool: the next batch gets a new one
+
+    def _pool(self, count):
+        """The run's process pool, started on the first batch that needs one and reused for
+        the next (starting workers costs about 0.3 s)."""
+        jobs = self.jobs or os.cpu_count() or 1
+        if self.pool is None and jobs > 1 and count > 1:
+            self.pool = start_pool(jobs)
+        return self.pool
+
+    def close(self):
+        """Stop the pool's workers (they exit; the fork server stays for later runs)."""
+        if self.pool is not None:
+            self.pool.shutdown()
+            self.pool = None
 
     def needs_work(self, frames, reference_ids):
         return any(not _reusable(self.session, self.previous, self.params, self.inputs, f,
@@ -192,17 +223,25 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     frames = session.frames()
     if not frames:
         raise StageError(f"{session.root}: the session has no frames to decode")
+    pooled = (jobs or os.cpu_count() or 1) > 1 and len(frames) > 1
+    if pooled and force:
+        prepare_pool()  # the fork server boots while the inputs are hashed
     inputs, failed = _verify(session, frames)
     if not force and not failed and session.stage_is_current("decode", params, inputs):
         return session.stage("decode")
+    # a run killed between a worker's write and its commit leaves hidden temporaries behind
+    sweep_temps(session.path("linear"))
+    if pooled:
+        prepare_pool()  # ... or while the headers are read (no-op when already running)
     sizes = _sizes(session, frames, binning, failed)
     run = _Run(session, params, inputs, sizes, failed, None if force else session.stage("decode"),
                jobs, progress)
     unlit = [f for f in frames if f["kind"] not in _LIT_KINDS and f["id"] not in failed]
     lit = [f for f in frames if f["kind"] in _LIT_KINDS and f["id"] not in failed]
-    run.decode(unlit)
     subtracted = {}
-    with tempfile.TemporaryDirectory(prefix="psrig-decode-") as folder:
+    with tempfile.TemporaryDirectory(prefix="psrig-decode-") as folder, \
+            contextlib.closing(run):
+        run.decode(unlit)
         for lit_kind in sorted({f["kind"] for f in lit}):
             group = [f for f in lit if f["kind"] == lit_kind]
             kind, references = _references(unlit, run.infos, lit_kind)
@@ -218,7 +257,10 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
 
 def _record(session, frames, run, subtracted, seconds):
     done = [f for f in frames if f["id"] in run.infos]
-    outputs = [session.rel(p(f)) for f in done for p in (session.linear_path, session.saturation_path)]
+    # Hashes come from the workers (computed on the bytes they wrote) or from the previous
+    # record (checked by _reusable): no output is read back here.
+    outputs = {rel: run.hashes[rel] for f in done
+               for rel in (session.rel(session.linear_path(f)), session.rel(session.saturation_path(f)))}
     status = "ok" if not run.failed else ("partial" if done else "failed")
     return session.record_stage(
         "decode", run.params, run.inputs, outputs, status=status, seconds=seconds,

@@ -79,19 +79,34 @@ def raw_layout(raw, path):
     }
 
 
-def _linear_mosaic(mosaic, layout):
+def _work(scratch, name, shape):
+    """A float32 work array from the caller's ``scratch`` dict, reused while the shape is the
+    same (a fresh 12 MP array costs page faults, about 0.02 s of system time each), or a new
+    one when ``scratch`` is None."""
+    if scratch is None:
+        return np.empty(shape, np.float32)
+    array = scratch.get(name)
+    if array is None or array.shape != tuple(shape):
+        array = scratch[name] = np.empty(shape, np.float32)
+    return array
+
+
+def _linear_mosaic(mosaic, layout, scratch=None):
     """(mosaic - black of its cell) / (white - black of its cell), float32 (H, W)."""
-    linear = mosaic.astype(np.float32)
+    linear = _work(scratch, "linear", mosaic.shape)
+    width = mosaic.shape[1]
     for i in range(2):
-        for j in range(2):
-            black = layout["black"][i, j]
-            cell = linear[i::2, j::2]
-            cell -= np.float32(black)
-            cell *= np.float32(1.0 / (layout["white"] - black))
+        # Whole rows of one Bayer phase at a time (contiguous rows, alternating black levels):
+        # twice as fast as four strided passes, and the same float32 arithmetic.
+        black = np.resize(layout["black"][i].astype(np.float32), width)
+        scale = np.resize((1.0 / (layout["white"] - layout["black"][i])).astype(np.float32), width)
+        rows = linear[i::2]
+        np.subtract(mosaic[i::2], black, out=rows, dtype=np.float32)
+        rows *= scale
     return linear
 
 
-def bilinear_demosaic(linear, colours):
+def bilinear_demosaic(linear, colours, out=None, scratch=None):
     """Bilinear demosaic of a linear Bayer mosaic.
 
     Parameters
@@ -100,15 +115,19 @@ def bilinear_demosaic(linear, colours):
         Black-subtracted mosaic.
     colours : ndarray (2, 2) int
         Colour (0 R, 1 G, 2 B) of each cell of the 2x2 Bayer cell.
+    out : sequence of 3 ndarray (H, W) float32, optional
+        R, G and B planes to write into (rows may be strided, e.g. views into a file buffer).
+    scratch : dict, optional
+        Work arrays kept between calls (see :func:`decode_raw`).
 
     Returns
     -------
-    ndarray (H, W, 3) float32
+    ndarray (H, W, 3) float32, or ``out``
         RGB; measured samples are kept as they are, the others are the mean of their nearest
         2 or 4 samples of that colour.
     """
     planes = []
-    sparse = np.empty_like(linear)
+    sparse = _work(scratch, "sparse", linear.shape)
     for channel in range(3):
         sparse.fill(0)
         for i, j in zip(*np.nonzero(colours == channel)):
@@ -116,8 +135,13 @@ def bilinear_demosaic(linear, colours):
         kernel = _KERNEL_GREEN if channel == 1 else _KERNEL
         # Reflect-101 mirrors about the edge photosite, which keeps the Bayer phase, so edge
         # pixels average the mirrored samples with the same weights.
-        planes.append(cv2.filter2D(sparse, -1, kernel, borderType=cv2.BORDER_REFLECT_101))
-    return cv2.merge(planes)
+        if out is None:
+            planes.append(cv2.filter2D(sparse, -1, kernel, borderType=cv2.BORDER_REFLECT_101))
+        elif cv2.filter2D(sparse, -1, kernel, dst=out[channel],
+                          borderType=cv2.BORDER_REFLECT_101) is not out[channel]:
+            raise ValueError("bilinear_demosaic: out planes must be float32 (H, W) arrays "
+                             "with contiguous rows")
+    return cv2.merge(planes) if out is None else out
 
 
 def bin2x2(linear, colours):
@@ -171,7 +195,7 @@ def _postprocess(raw, layout, binning):
     return rgb16.astype(np.float32) * np.float32(1.0 / 65535.0)
 
 
-def decode_raw(path, *, method="mosaic", binning=1):
+def decode_raw(path, *, method="mosaic", binning=1, out=None, scratch=None):
     """Decode a raw file to linear RGB.
 
     Parameters
@@ -179,30 +203,47 @@ def decode_raw(path, *, method="mosaic", binning=1):
     path : str or Path
     method : {'mosaic', 'postprocess'}
     binning : {1, 2}
+    out : sequence of 3 ndarray (H, W) float32, optional
+        Mosaic path at full size only: R, G, B planes to demosaic into (e.g. views into an
+        output file's bytes, see :class:`pipeline.decode_exr.ExrBuffer`); (H, W) must be the
+        visible raw size.
+    scratch : dict, optional
+        Work arrays (mosaic path) kept here and reused by the next call with the same dict,
+        e.g. by a worker decoding many frames of one size. Not shared between threads.
 
     Returns
     -------
-    rgb : ndarray (H, W, 3) float32
+    rgb : ndarray (H, W, 3) float32, or ``out``
         Camera RGB, 1.0 = white level minus black; negative values kept on the mosaic path.
     saturated : ndarray (H, W) bool
     info : dict
         ``cfa``, ``black`` (4 values in CFA order, DN), ``white`` (DN), ``raw`` True.
     """
+    if out is not None and (method, binning) != ("mosaic", 1):
+        raise ValueError("decode_raw: out is only for the mosaic path at full size")
     with open_raw(path) as raw:
         try:
             # rawpy reads the data lazily: a truncated file fails on first access, here.
             layout = raw_layout(raw, path)
-            mosaic = raw.raw_image_visible.copy()
+            mosaic = raw.raw_image_visible
+            if out is not None and tuple(mosaic.shape) != tuple(out[0].shape):
+                raise ImageFileError(f"{path}: decoded to {tuple(mosaic.shape)}, expected "
+                                     f"{tuple(out[0].shape)} like the other frames")
+            # Judged on the raw values, before LibRaw's postprocess touches anything (and
+            # while the file is open: no copy of the mosaic needed).
+            saturated = _saturation(mosaic, layout["white"], binning,
+                                    2 if method == "postprocess" else 1)
             if method == "postprocess":
                 rgb = _postprocess(raw, layout, binning)
             else:
-                linear = _linear_mosaic(mosaic, layout)
+                linear = _linear_mosaic(mosaic, layout, scratch)
                 rgb = bin2x2(linear, layout["colours"]) if binning == 2 \
-                    else bilinear_demosaic(linear, layout["colours"])
+                    else bilinear_demosaic(linear, layout["colours"], out=out, scratch=scratch)
         except _RAW_ERRORS as exc:
             raise ImageFileError(f"{path}: cannot decode raw data ({_reason(exc)})") from None
-    saturated = _saturation(mosaic, layout["white"], binning, 2 if method == "postprocess" else 1)
-    height, width = min(rgb.shape[0], saturated.shape[0]), min(rgb.shape[1], saturated.shape[1])
     info = {"raw": True, "cfa": layout["cfa"], "black": layout["black"].ravel().tolist(),
             "white": layout["white"]}
+    if out is not None:
+        return out, saturated, info
+    height, width = min(rgb.shape[0], saturated.shape[0]), min(rgb.shape[1], saturated.shape[1])
     return rgb[:height, :width], saturated[:height, :width], info
