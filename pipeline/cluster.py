@@ -21,7 +21,7 @@ import time
 import uuid
 from pathlib import Path
 
-from .cluster_tiles import assemble_normals, plan_normals, run_tile
+from .cluster_tiles import WHOLE_IMAGE, assemble_normals, plan_normals, run_tile
 from .errors import InputError, PsrigError, StageError
 from .progress import progress
 from .runner import SessionOutcome, StageOutcome, _run_stage
@@ -96,11 +96,13 @@ def _session_tail(outcome, plan, options, forced, stop, tiles):
     del tiles  # only a dependency: the tile files are found from the plan
     try:
         try:
-            assemble_normals(plan)
+            assembled = assemble_normals(plan)
         except PsrigError as exc:
             raise StageError(f"stage normals: {exc}") from None
-        outcome.stages.append(StageOutcome("normals", True, time.time() - plan.started))
         session = Session.open(plan.root)
+        if assembled == WHOLE_IMAGE:  # the lights need a correction only a whole solve makes
+            _run_stage(session, "normals", options, True, 1)
+        outcome.stages.append(StageOutcome("normals", True, time.time() - plan.started))
         names = _stage_names(stop)
         for name in names[names.index("normals") + 1:]:
             outcome.stages.append(_run_stage(session, name, options, name in forced, 1))

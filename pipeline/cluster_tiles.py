@@ -33,16 +33,21 @@ from .atomic import atomic_path
 from .errors import InputError, StageError
 from .imageio import read_mask
 from .near_lights import PointLights, observations_at
-from .normals_stage import LIGHTS, STAGE, _auto_mask, _inputs, _object_frames, _write_outputs, \
-    light_model, load_object_stack, read_stage_lights, stage_params
-from .photometric import STATUS, PhotometricResult, _allocate, _method, _scatter, estimate_normals, \
-    resolve_selection
+from .normals_stage import ANCHOR_KEYS, LIGHTS, STAGE, _auto_mask, _inputs, _object_frames, _plain, \
+    _write_outputs, light_model, load_object_stack, read_stage_lights, stage_params
+from .photometric import STATUS, PhotometricResult, _allocate, _anchor_wanted, _method, _scatter, \
+    estimate_normals, resolve_selection
+from .ps_anchor import first_verdict, highlight_mismatch
 from .session import Session
 
 __all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
-           "SCRATCH", "serial_chunk_size"]
+           "SCRATCH", "WHOLE_IMAGE", "serial_chunk_size"]
 
 SCRATCH = "normals/.tiles"
+#: :func:`assemble_normals`' answer when the lights need the specular-peak correction
+#: (:mod:`pipeline.ps_anchor`): one global scale, applied to every pixel, that only a solve of
+#: the whole image can make; the caller then runs the serial normals stage.
+WHOLE_IMAGE = "whole-image"
 
 
 @dataclass
@@ -52,7 +57,8 @@ class TilePlan:
     ``lights`` (K, 3) are the used lights' unit directions (camera frame); ``options`` the
     solver options after :func:`pipeline.photometric.resolve_selection`; ``context`` the
     method's shared context; ``tiles`` the :func:`pixel_tiles` of the mask; ``chunk`` the
-    pixels per solver call; ``params``/``inputs``/``extra`` go to the stage record.
+    pixels per solver call; ``params``/``inputs``/``extra`` go to the stage record; ``anchor``
+    whether tiles also measure the specular-peak mismatches of :mod:`pipeline.ps_anchor`.
     """
 
     root: str
@@ -67,6 +73,7 @@ class TilePlan:
     chunk: int
     extra: dict = field(default_factory=dict)
     started: float = 0.0
+    anchor: bool = False
 
     def scratch(self, name=""):
         return Path(self.root) / SCRATCH / name
@@ -160,12 +167,14 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=No
     if model == "near":
         directions = PointLights(lights.positions[chosen], mask.shape)
         solved = resolve_selection(directions.central_directions, options)
+    anchor = _anchor_wanted(method, solved.pop("specular_anchor", "auto"), solved, directions,
+                            directions if model == "near" else None)
     context = _prepare(method, folder, mask, directions, solved)
     extra = {"lights_used": len(used), "lights_left_out": sorted(int(k) for k in lights.flags),
              "light_model": model}
     chunk = chunk or serial_chunk_size()
     return TilePlan(str(session.root), method, solved, directions, context, mask.shape,
-                    pixel_tiles(mask, tile_pixels, chunk), params, inputs, chunk, extra, started)
+                    pixel_tiles(mask, tile_pixels, chunk), params, inputs, chunk, extra, started, anchor)
 
 
 def _unit_directions(session, directions):
@@ -230,10 +239,14 @@ def run_tile(plan, tile, hook=None):
                 raise InputError(f"{plan.root}: normals: image {bad} has non-finite pixel values "
                                  f"inside the mask (rows {r0}-{r1 - 1})")
             obs, lights = observations_at(plan.lights, obs, idx + r0 * width)
-            pieces.append(solver(obs, block_valid[:, idx].T, lights, context=plan.context, **plan.options))
+            piece = solver(obs, block_valid[:, idx].T, lights, context=plan.context, **plan.options)
+            if plan.anchor:  # as estimate_normals measures it, chunk by chunk
+                piece["mismatch"] = highlight_mismatch(obs, np.nan_to_num(piece["b"]), lights,
+                                                       valid=block_valid[:, idx].T)
+            pieces.append(piece)
     if hook is not None:
         hook(plan, tile)
-    keys = ("b", "status", "used", "rss", "params")
+    keys = ("b", "status", "used", "rss", "params") + (("mismatch",) if plan.anchor else ())
     arrays = {key: np.concatenate([p[key] for p in pieces]) for key in keys} if pieces else {}
     with atomic_path(target) as tmp:
         np.savez(tmp, idx=local + r0 * width, **arrays)
@@ -241,9 +254,17 @@ def run_tile(plan, tile, hook=None):
 
 
 def assemble_normals(plan, tile_paths=None):
-    """Scatter the tiles into full maps, write ``normals/``, record the stage; returns the record."""
+    """Scatter the tiles into full maps, write ``normals/``, record the stage; returns the record.
+
+    Returns :data:`WHOLE_IMAGE` instead (and writes nothing) when the tiles' specular-peak
+    mismatches call for a correction of the lights.
+    """
     session = Session.open(plan.root)
     mask = np.load(plan.scratch("mask.npy"))
+    anchor = _anchor_verdict(plan) if plan.anchor else None
+    if anchor is not None and anchor["anchor"] == "to correct":
+        shutil.rmtree(plan.scratch(), ignore_errors=True)
+        return WHOLE_IMAGE
     out = None
     for tile in plan.tiles:
         path = plan.scratch(f"tile-{tile[0]:010d}.npz")
@@ -264,7 +285,23 @@ def assemble_normals(plan, tile_paths=None):
     extra = {"pixels": int(mask.sum()), "status_counts": counts, **plan.extra}
     if result.shared_shape is not None:
         extra["shared_shape"] = [round(float(v), 6) for v in result.shared_shape]
+    if anchor is not None:  # as the serial stage records it
+        extra["specular_anchor"] = _plain({k: anchor[k] for k in ANCHOR_KEYS if k in anchor})
     record = session.record_stage(STAGE, plan.params, plan.inputs, outputs,
                                   seconds=time.time() - plan.started, **extra)
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record
+
+
+def _anchor_verdict(plan):
+    """:func:`pipeline.ps_anchor.first_verdict` of all tiles' mismatches (tiles must exist)."""
+    found = []
+    for tile in plan.tiles:
+        path = plan.scratch(f"tile-{tile[0]:010d}.npz")
+        if not path.is_file():
+            raise StageError(f"{path}: normals: tile result is missing")
+        with np.load(path) as data:
+            if "mismatch" in data:
+                found.append(data["mismatch"])
+    return first_verdict(np.concatenate(found) if found else np.zeros(0))
+

@@ -150,6 +150,9 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
              "light_model": model}
     if result.shared_shape is not None:
         extra["shared_shape"] = [round(float(v), 6) for v in result.shared_shape]
+    anchor = {k: result.options[k] for k in ANCHOR_KEYS if k in result.options}
+    if anchor:
+        extra["specular_anchor"] = _plain(anchor)
     return session.record_stage(STAGE, params, inputs, outputs, seconds=time.perf_counter() - start, **extra)
 
 
@@ -167,3 +170,20 @@ def _write_outputs(session, result):
     write_image(folder / "status_vis.png", _STATUS_COLOURS[np.minimum(result.status, 5)], bits=8)
     return [f"normals/{n}" for n in ("normals.exr", "albedo.exr", "residual.exr", "brdf.exr", "normals.png",
                                       "mask.png", "status.png", "status_vis.png")]
+
+
+#: what :mod:`pipeline.ps_anchor` reports in the result's options, kept in the stage record
+ANCHOR_KEYS = ("cone_scale", "anchor", "mismatch_deg", "highlight_pixels", "probe_mismatch_deg",
+               "final_mismatch_deg")
+
+
+def _plain(value):
+    """numpy scalars and arrays as YAML-safe Python numbers and lists."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+

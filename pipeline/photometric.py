@@ -7,7 +7,9 @@ Methods are registered by name in :data:`METHODS` (one dispatcher, :func:`estima
 ``biquadratic`` (default)
     The paper's per-pixel relaxed biquadratic model (Sec. 5) with robust observation selection
     and a shared-shape prior; see :mod:`pipeline.ps_biquadratic` and the README for the rule
-    and the measurements behind its defaults.
+    and the measurements behind its defaults. Under a narrow light cone, where sharp specular
+    peaks show the normals' slant to be off, the lights' polar angles are corrected once
+    (:mod:`pipeline.ps_anchor`, option ``specular_anchor``; reported in ``result.options``).
 ``lambert``
     Lambertian least squares on all valid observations (the classic baseline).
 ``lambert-low``
@@ -34,6 +36,7 @@ from threadpoolctl import threadpool_limits
 
 from .errors import InputError
 from .near_lights import PointLights, observations_at
+from .ps_anchor import anchor_scale, highlight_mismatch
 from .ps_biquadratic import alternate_shared, fit_pixel_shapes, fit_shared_shape, gauss_newton_normals, \
     half_vectors, to_paper_order, unit
 from .ps_lambert import lambert_weighted
@@ -172,7 +175,12 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     progress : callable, optional
         Called with the number of pixels finished after each chunk.
     **options
-        Method options (see each method's function, e.g. :func:`biquadratic_method`).
+        Method options (see each method's function, e.g. :func:`biquadratic_method`), and
+        ``specular_anchor`` ('auto', True or False): correct the lights' polar angles where sharp
+        specular peaks show the normals' slant to be off (:mod:`pipeline.ps_anchor`; 'auto' =
+        the biquadratic method under a narrow light cone). Its outcome is in the result's
+        ``options`` (``cone_scale``, 1.0 when unchanged, ``anchor``, ``mismatch_deg``,
+        ``highlight_pixels``); a corrected run costs up to three estimations.
 
     Returns
     -------
@@ -185,6 +193,44 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     if near is not None:
         lights = near.central_directions
     options = resolve_selection(lights, options)
+    anchor = _anchor_wanted(method, options.pop("specular_anchor", "auto"), options, lights, near)
+
+    runs = []
+
+    def solve(run_lights):
+        # Progress is reported for the first run only: its total is the mask's pixel count.
+        runs.append(run_lights)
+        return _run(solver, images, run_lights, near, mask, valid, chunk_size, workers,
+                    progress if len(runs) == 1 else None, anchor, options)
+
+    if anchor:
+        (out, shape), info = anchor_scale(solve, lights)
+        options.update(info)
+    else:
+        out, shape = solve(lights)[0]
+    return PhotometricResult(
+        normals=out["normals"], mask=mask, status=out["status"], albedo=out["albedo"], params=out["params"],
+        residual=out["residual"], used=out["used"], method=method, options=options,
+        seconds=time.perf_counter() - start, shared_shape=shape)
+
+
+def _anchor_wanted(method, specular_anchor, options, lights, near):
+    """Whether to anchor the light cone on specular peaks (:mod:`pipeline.ps_anchor`).
+
+    'auto': for the biquadratic method with robust selection (the narrow-cone case, where the
+    slant is nearly ambiguous) and directional lights shared by all pixels. True: for any
+    method, still only with shared directional lights (the correction scales their polar
+    angles). False: never.
+    """
+    if specular_anchor not in ("auto", True, False):
+        raise InputError(f"specular_anchor must be 'auto', True or False, got {specular_anchor!r}")
+    if near is not None or np.asarray(lights).ndim != 2 or specular_anchor is False:
+        return False
+    return specular_anchor is True or (method == "biquadratic" and options.get("selection") == "robust")
+
+
+def _run(solver, images, lights, near, mask, valid, chunk_size, workers, progress, anchor, options):
+    """One estimation over all chunks: ((output arrays, shared shape), highlight mismatches)."""
     k = images.shape[0]
     flat_images = images.reshape(k, -1)
     flat_lights = None if lights.ndim == 2 else lights.reshape(k, -1, 3)
@@ -201,14 +247,20 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         return obs, obs_valid, obs_lights
 
     out = {}
+    mismatch = []
     lock = threading.Lock()
 
     def work(idx):
-        chunk = solver(*gather(idx), context=context, **options)
+        obs, obs_valid, obs_lights = gather(idx)
+        chunk = solver(obs, obs_valid, obs_lights, context=context, **options)
+        # Measured here, on the chunk's observations already in memory (no second gather).
+        found = highlight_mismatch(obs, np.nan_to_num(chunk["b"]), obs_lights, valid=obs_valid) if anchor else None
         with lock:
             if not out:
                 out.update(_allocate(mask.shape, chunk["params"].shape[1]))
             _scatter(out, idx, chunk)
+            if found is not None:
+                mismatch.append(found)
         if progress:
             progress(len(idx))
 
@@ -225,12 +277,7 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
                            if hasattr(solver, "prepare") else None)
         for future in [pool.submit(work, idx) for idx in chunks]:
             future.result()
-    normals = out["normals"]
-    return PhotometricResult(
-        normals=normals, mask=mask, status=out["status"], albedo=out["albedo"], params=out["params"],
-        residual=out["residual"], used=out["used"], method=method, options=options,
-        seconds=time.perf_counter() - start, shared_shape=context.get("shape_paper"))
-
+    return (out, context.get("shape_paper")), (np.concatenate(mismatch) if mismatch else np.zeros(0))
 
 
 class _Context:
@@ -469,6 +516,9 @@ def biquadratic_method(obs, valid, lights, **options):
     max_iter, tol
         Alternation limit (10) and convergence threshold: relative change of the pixel's
         residual (1e-6; the paper stops at an absolute change of 1e-7).
+    specular_anchor : {'auto', True, False}
+        Handled by :func:`estimate_normals` (not by this per-chunk function): correct the
+        lights' polar angles from sharp specular peaks, see :mod:`pipeline.ps_anchor`.
     """
     return METHODS["biquadratic"](obs, valid, lights, context={}, **options)
 

@@ -41,6 +41,13 @@ def shadow_weights(obs, valid=None, t_shadow=0.1):
 def select_robust(obs, lights, base, k_high=2.5, k_low=2.5, iterations=3, min_obs=3):
     """Robust Lambertian reweighting.
 
+    Parameters
+    ----------
+    obs, base : ndarray (N, K)
+        Intensities and the non-shadowed 0/1 weights (:func:`shadow_weights`).
+    lights : ndarray (K, 3) or (N, K, 3)
+        Unit light directions, shared or per pixel.
+
     Returns
     -------
     weights : ndarray (N, K)
@@ -51,7 +58,8 @@ def select_robust(obs, lights, base, k_high=2.5, k_low=2.5, iterations=3, min_ob
     weights = base
     b = lambert_weighted(obs, lights, weights)
     for _ in range(iterations):
-        resid = obs - b @ lights.T
+        # Lights (K, 3) shared, or (N, K, 3) per pixel (near lights).
+        resid = obs - (b @ lights.T if lights.ndim == 2 else np.einsum("ni,nki->nk", b, lights))
         scale = _mad(resid, base) + 1e-9
         keep = base * ((resid < k_high * scale) & (resid > -k_low * scale))
         enough = keep.sum(axis=1) >= min_obs

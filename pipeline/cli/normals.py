@@ -21,6 +21,10 @@ def register(sub):
     parser.add_argument("--lights-model", choices=("auto", "directional", "near"), default="auto",
                         help="near: per-pixel directions and falloff from calibrated light positions; "
                              "auto (default): near when lights.yaml has positions the calibration kept")
+    parser.add_argument("--specular-anchor", choices=("auto", "on", "off"), default="auto",
+                        help="correct the lights' polar angles where sharp specular peaks show the "
+                             "normals' slant to be off (auto, the default: biquadratic under a narrow "
+                             "light cone)")
     parser.add_argument("--force", action="store_true", help="run even when the stage is up to date")
     parser.set_defaults(func=run)
 
@@ -36,6 +40,7 @@ def run(args):
     session = Session.open(args.session)
     record = normals_session(session, method=args.method, force=args.force, t_low=t_low,
                              lights_model=args.lights_model,
+                             specular_anchor={"auto": None, "on": True, "off": False}[args.specular_anchor],
                              t_shadow=args.t_shadow, reject_k=args.reject_k, shape_prior=args.shape_prior)
     if record is None:
         print(f"{session.root}: normals up to date (use --force to rerun)")

@@ -256,3 +256,48 @@ def test_non_finite_observation_in_a_tile_is_an_error_naming_image_and_rows(tmp_
     with pytest.raises(InputError, match=rf"image 3 .*rows {r0}-{r1 - 1}"):
         cluster_tiles.run_tile(plan, plan.tiles[1])
     assert not plan.scratch(f"tile-{p0:010d}.npz").exists()
+
+
+def make_miscalibrated_session(folder, name, size=80):
+    """Sharp highlights under a narrow cone whose given lights are 5 % too narrow in polar angle:
+    the serial stage corrects the lights from the specular peaks (pipeline.ps_anchor)."""
+    from pipeline.ps_anchor import scale_cone
+    from ps_synthetic import cook_torrance_images, hemisphere_lights, sphere_normals
+
+    lights = hemisphere_lights(96, seed=1, min_elevation_deg=48)
+    normals, mask = sphere_normals(size)
+    images = cook_torrance_images(normals, mask, scale_cone(lights, 1.05), roughness=0.05, ks=0.5, noise=0.002)
+    images = images / (1.05 * images.max())  # no clipping in the 16-bit PNGs
+    src = folder / f"{name}_src"
+    src.mkdir(parents=True)
+    for k, image in enumerate(images):
+        write_image(src / f"img{k + 1:02d}.png", np.repeat(image[..., None], 3, axis=2))
+    (src / "lights.txt").write_text("".join(f"{x} {y} {z}\n" for x, y, z in lights))
+    write_mask(src / "mask.png", mask)
+    return import_images(folder / name, str(src / "img*.png"), mask=src / "mask.png",
+                         lights=src / "lights.txt").root
+
+
+def test_tiles_hand_a_session_whose_lights_need_correcting_to_the_serial_stage(tmp_path):
+    reference, tiled = (make_miscalibrated_session(tmp_path, name) for name in ("a", "b"))
+    for root in (reference, tiled):
+        runner.run_session(root, stop="calibrate")
+    normals_session(Session.open(reference), show_progress=False)
+    assert Session.open(reference).stage("normals")["specular_anchor"]["anchor"] == "corrected"
+    plan = cluster_tiles.plan_normals(Session.open(tiled), {}, tile_pixels=1)
+    assert plan.anchor and len(plan.tiles) > 1
+    for tile in plan.tiles:
+        cluster_tiles.run_tile(plan, tile)
+    assert cluster_tiles.assemble_normals(plan) == cluster_tiles.WHOLE_IMAGE
+    assert Session.open(tiled).stage("normals") is None  # nothing written from the tiles
+    assert not (Path(tiled) / cluster_tiles.SCRATCH).exists()
+
+
+def test_batch_corrects_lights_like_the_serial_run(tmp_path, client, monkeypatch):
+    _use_client(monkeypatch, client)
+    # same session name in two folders: the report shows the name
+    reference, tiled = (make_miscalibrated_session(tmp_path / where, "s") for where in ("serial", "tiled"))
+    assert not runner.run_sessions([reference])[0].error
+    outcomes = cluster.run_batch([tiled], tile_pixels=1, show_progress=False)
+    assert outcomes[0].error == ""
+    assert_identical([tiled], [reference])
