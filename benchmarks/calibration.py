@@ -2,7 +2,7 @@
 
 Prints, per PSBox probe, the angles to the probe's own published directions (median vs the
 0.5 deg target, found circle, no clicks; then with the circle found, also without clicks, on the
-probe's room-lit ref.JPG) and the two probes' agreement; then, on the simulated rig's sphere
+probe's room-lit ref.JPG given as the outline photo) and the two probes' agreement; then, on the simulated rig's sphere
 scene (360 x 480, 32 lights), direction median/max vs 0.2/0.5 deg, intensity error vs 1 % and,
 for near lights, the triangulated distance error vs 2 %.
 """
@@ -15,7 +15,6 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from calibration.circle import find_sphere  # noqa: E402
 from calibration.intensities import target_intensities  # noqa: E402
 from calibration.positions import frame_offset  # noqa: E402
 from calibration.sphere import calibrate_sphere  # noqa: E402
@@ -42,13 +41,17 @@ def psbox(root):
               f"max {a.max():.3f}; circle ({c.cx:.2f}, {c.cy:.2f}, {c.r:.2f}) vs published "
               f"({xc - 1:.2f}, {frames.shape[1] - yc:.2f}, {r:.2f}); {secs:.2f} s; flags {result.flags}")
         dirs[name] = result.directions
-        # the same frames with the outline found (no clicks) on the probe's ref.JPG, the room-lit
-        # photo the author clicked on: isolates the outline the light frames give from the rest
-        ref = cv2.imread(str(folder / "ref.JPG"))[:, :, ::-1].astype(np.float32).mean(-1) / 255
-        rc = find_sphere(ref)
-        b = angles(calibrate_sphere(frames.astype(np.float32) / 255, circle=rc).directions, own)
+        # the same frames with the probe's ref.JPG, the room-lit photo the author clicked on, as
+        # the outline photo (the public route: circles found there, no clicks): isolates the
+        # outline the light frames give from the rest
+        ref = cv2.imread(str(folder / "ref.JPG"))[:, :, ::-1].astype(np.float32) / 255
+        start = time.perf_counter()
+        with_ref = calibrate_sphere(frames.astype(np.float32) / 255, outline=ref)
+        secs = time.perf_counter() - start
+        rc, b = with_ref.circle, angles(with_ref.directions, own)
         print(f"psbox {name} with the circle found on ref.JPG ({rc.cx:.2f}, {rc.cy:.2f}, {rc.r:.2f}): "
-              f"median {np.median(b):.3f} deg (ratio {np.median(b) / 0.5:.2f}), max {b.max():.3f}")
+              f"median {np.median(b):.3f} deg (ratio {np.median(b) / 0.5:.2f}), max {b.max():.3f}; "
+              f"{secs:.2f} s; flags {with_ref.flags}")
     a = angles(dirs["LightProbe-1"], dirs["LightProbe-2"])
     p = angles(np.loadtxt(root / "LightProbe-1/light_directions.txt").T,
                np.loadtxt(root / "LightProbe-2/light_directions.txt").T)

@@ -34,7 +34,7 @@ class Circle:
     sigma : ndarray (3,)
         Standard errors of (cx, cy, r), pixels.
     method : str
-        'given', 'mask' or 'fit'.
+        'given', 'mask', 'fit' (found on the frames) or 'outline' (found on an outline photo).
     """
 
     cx: float
@@ -226,13 +226,22 @@ def _overlaps(circle, others):
     return any(np.hypot(circle.cx - o.cx, circle.cy - o.cy) < 0.9 * (circle.r + o.r) for o in others)
 
 
+def _nested(circle, others):
+    """True when ``circle`` lies inside a larger one: no sphere shows inside another, so it is a
+    reflection or a marking on that sphere (a room-lit chrome ball mirrors round lamps and
+    windows, whose crisp outlines can be better supported than the sphere's own limb)."""
+    return any(o.r > circle.r and np.hypot(circle.cx - o.cx, circle.cy - o.cy) + circle.r < 1.05 * o.r
+               for o in others)
+
+
 def find_spheres(image, count=None, *, min_inliers=0.4, max_rms=None):
     """Find the spheres in a grey image (H, W) with no clicks.
 
     Hough seeds on a log-compressed image are refined on the image itself
     (:func:`refine_circle`); a refined outline is credible when at least ``min_inliers`` of it
     supports the circle with an RMS edge distance under ``max_rms`` pixels (2 % of the radius
-    by default). Overlapping candidates keep the best supported one.
+    by default). A candidate inside a larger credible one is dropped (a reflection on that
+    sphere); of overlapping candidates the best supported is kept.
 
     Parameters
     ----------
@@ -265,6 +274,7 @@ def find_spheres(image, count=None, *, min_inliers=0.4, max_rms=None):
         if _credible(circle, image.shape, min_inliers, max_rms):
             found.append(circle)
     circles = []
+    found = [c for c in found if not _nested(c, found)]
     for circle in sorted(found, key=lambda c: (-c.inliers, c.rms / c.r)):
         if not _overlaps(circle, circles):
             circles.append(circle)

@@ -3,9 +3,10 @@
 >>> lights = calibrate_lights(images)                 # (K, 3), raises if a light is doubtful
 >>> result = calibrate_sphere(images, spheres=2)      # directions, circles, highlights, flags,
 ...                                                   # uncertainty, positions (two spheres)
+>>> result = calibrate_sphere(images, outline=photo)  # outlines found on an evenly lit photo
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import ndimage
@@ -140,8 +141,37 @@ def _mask_regions(mask, shape):
     return [r for r in regions if r.sum() >= 20] or [mask > 0]
 
 
-def _circles(grey, circle, mask, spheres):
+def _outline_grey(outline, shape):
+    """Grey (H, W) float32 of the outline photo, checked against the frames' size ``shape``."""
+    outline = np.asarray(outline)
+    if outline.ndim not in (2, 3):
+        raise InputError(f"outline photo: expected an (H, W) or (H, W, C) image, got shape {outline.shape}")
+    if outline.shape[:2] != tuple(shape):
+        raise InputError(f"outline photo: size {outline.shape[1]}x{outline.shape[0]} (W x H) does not match "
+                         f"the frames' {shape[1]}x{shape[0]}; it must be taken from the same camera position "
+                         "at the same resolution")
+    grey = outline.astype(np.float32)
+    if grey.ndim == 3:
+        grey = grey.mean(axis=-1)
+    return np.nan_to_num(grey, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def _outline_circles(outline, shape, spheres):
+    """Circles found on the outline photo, labelled 'outline'."""
+    try:
+        found = find_spheres(_outline_grey(outline, shape), spheres)
+    except SphereNotFound as exc:
+        raise SphereNotFound(f"outline photo: {exc}") from None
+    return [replace(c, method="outline") for c in found]
+
+
+def _circles(grey, circle, mask, spheres, outline=None):
     """[(Circle, region mask or None)] of every sphere to consider."""
+    if outline is not None:
+        other = [name for name, v in (("circle", circle), ("mask", mask)) if v is not None]
+        if other:
+            raise InputError(f"give the sphere outlines one way only: got outline and {' and '.join(other)}")
+        return [(c, None) for c in _outline_circles(outline, grey.shape[1:], spheres)]
     if circle is not None:
         return [(c, None) for c in _given(circle)]
     if mask is not None:
@@ -195,7 +225,7 @@ def _uncertainty(blob, circ, K, direction):
     return float(np.sqrt(np.nansum(np.square(angles))))
 
 
-def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None, spheres=None):
+def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None, spheres=None, outline=None):
     """Light directions (and positions with two chrome spheres) from sphere frames.
 
     Parameters
@@ -214,6 +244,13 @@ def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None,
     spheres : int or None
         How many spheres (chrome and matte) to find when no circle is given; None finds
         every credible one.
+    outline : ndarray (H, W) or (H, W, C) or None
+        An evenly (room-)lit photo of the sphere(s) from the same camera position, same size
+        as the frames, any scale (linear or gamma-encoded). Used only to find the sphere
+        circles: under even light the whole limb contrasts with the background, while in the
+        light frames a dark rim or the stand can pull the outline off by pixels. The chrome or
+        matte kind of each sphere is still decided on the frames. None (default) finds the
+        circles on the frames. Not together with ``circle`` or ``mask``.
 
     Returns
     -------
@@ -223,6 +260,9 @@ def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None,
     ------
     SphereNotFound
         No sphere, or no chrome sphere among those found.
+    InputError
+        The outline photo's size differs from the frames', or it comes with ``circle`` or
+        ``mask``.
     """
     grey, peak, floor = _grey(images)
     K = check_K(K)
@@ -235,7 +275,7 @@ def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None,
         sat = np.asarray(saturation, bool)
         if sat.shape != grey.shape:
             raise InputError(f"saturation masks: shape {sat.shape} does not match the frames {grey.shape}")
-    found = _circles(grey, circle, mask, spheres)
+    found = _circles(grey, circle, mask, spheres, outline)
     kinds, chrome, targets = [], [], []
     for circ, region in found:
         kind, share = sphere_kind(grey, circ.params)
@@ -312,17 +352,18 @@ def _add_positions(result, K, shape):
     result.method += ", near lights triangulated from the spheres"
 
 
-def calibrate_lights(images, circle=None, mask=None, *, on_flag="raise", **options):
+def calibrate_lights(images, circle=None, mask=None, *, outline=None, on_flag="raise", **options):
     """Unit light directions (K, 3), camera frame, from chrome-sphere frames.
 
-    A thin wrapper of :func:`calibrate_sphere` (same parameters). When a light is flagged (no
+    A thin wrapper of :func:`calibrate_sphere` (same parameters; ``outline`` is an evenly lit
+    photo (H, W) or (H, W, C) the sphere circles are found on). When a light is flagged (no
     highlight, two highlights, an overexposed blob, a highlight on the rim), ``on_flag='raise'``
     (default) raises :class:`CalibrationError` naming the frames and reasons; ``on_flag='nan'``
     returns those rows as NaN instead. A flagged direction is never returned as if it were good.
     """
     if on_flag not in ("raise", "nan"):
         raise InputError(f"on_flag: expected 'raise' or 'nan', got {on_flag!r}")
-    result = calibrate_sphere(images, circle, mask, **options)
+    result = calibrate_sphere(images, circle, mask, outline=outline, **options)
     directions = result.directions.copy()
     if result.flags:
         if on_flag == "raise":

@@ -1,7 +1,8 @@
 """The session stage: sphere frames -> calibration/lights.yaml, lights.lp, overlays.
 
 Chrome spheres give the directions (and, with two of them, near-light positions); a matte
-sphere in the same frames gives the per-light, per-channel intensities.
+sphere in the same frames gives the per-light, per-channel intensities. An evenly lit photo of
+the spheres (``outline``), when given, is where their circles are found.
 """
 
 import time
@@ -9,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError, StageError
+from pipeline.errors import ImageFileError, InputError, StageError
 from pipeline.imageio import read_image, read_mask
 from pipeline.session import file_sha256
 from pipeline.lightsio import LightSet, write_lights_yaml, write_lp
@@ -80,7 +81,15 @@ def _extra(result, note):
     return extra
 
 
-def _params(circle, sphere_mask, K):
+def _outline_path(outline):
+    """Absolute path of the outline photo (a relative one is taken from the current directory)."""
+    path = Path(outline).expanduser().absolute()
+    if not path.is_file():
+        raise InputError(f"{outline}: outline photo not found")
+    return path
+
+
+def _params(circle, sphere_mask, K, outline=None):
     circles = None if circle is None else np.atleast_2d(np.asarray(circle, float)).tolist()
     # the mask may live outside the session: its hash goes with the parameters
     mask_hash = None
@@ -88,8 +97,31 @@ def _params(circle, sphere_mask, K):
         if not Path(sphere_mask).is_file():
             raise InputError(f"{sphere_mask}: sphere mask file not found")
         mask_hash = file_sha256(sphere_mask)
-    return {"circle": circles, "sphere_mask": None if sphere_mask is None else str(sphere_mask),
-            "sphere_mask_sha256": mask_hash, "K": None if K is None else np.asarray(K, float).tolist()}
+    params = {"circle": circles, "sphere_mask": None if sphere_mask is None else str(sphere_mask),
+              "sphere_mask_sha256": mask_hash, "K": None if K is None else np.asarray(K, float).tolist()}
+    if outline is not None:
+        # so is the outline photo's; the keys only appear when one is given, so the records of
+        # sessions calibrated without one stay current
+        path = _outline_path(outline)
+        params.update(outline=str(path), outline_sha256=file_sha256(path))
+    return params
+
+
+def _read_outline(path, session, shape):
+    """The outline photo (H, W, C) float32, checked against the linear frames' size (H, W)."""
+    try:
+        image = read_image(path)
+    except ImageFileError as exc:
+        raise InputError(f"outline photo: {exc}") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the outline photo ({exc})") from None
+    if image.shape[:2] != tuple(shape):
+        binning = ((session.stage("decode") or {}).get("params") or {}).get("binning", 1)
+        hint = f" (decoded with binning {binning})" if binning not in (None, 1) else ""
+        raise InputError(f"{path}: outline photo is {image.shape[1]}x{image.shape[0]} pixels but the sphere "
+                         f"frames are {shape[1]}x{shape[0]}{hint}; it must come from the same camera "
+                         "position at the frames' size")
+    return image
 
 
 def _overlays(session, images, result):
@@ -105,7 +137,8 @@ def _overlays(session, images, result):
     return rels + names
 
 
-def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, force=False, echo=print):
+def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline=None, force=False,
+                      echo=print):
     """Calibrate the lights of ``session`` from its sphere frames.
 
     Parameters
@@ -117,6 +150,11 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, force=F
         PNG mask of the sphere(s): one blob (or label) per sphere.
     K : ndarray (3, 3) or None
         Intrinsics; orthographic when None.
+    outline : path or None
+        An evenly (room-)lit photo of the spheres from the same camera position, at the linear
+        frames' size (any format psrig reads), on which the circles are found; relative paths
+        are taken from the current directory. Its path and sha256 go into the stage
+        parameters, so a changed photo reruns the stage.
     force : bool
         Recompute even when the stage record is current.
     echo : callable
@@ -133,7 +171,7 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, force=F
             echo(f"{session.root}: no sphere frames; keeping the imported {LIGHTS}")
             return None
         raise StageError(f"{session.root}: no sphere frames and no {LIGHTS}")
-    params = _params(circle, sphere_mask, K)
+    params = _params(circle, sphere_mask, K, outline)
     rels = [session.rel(session.linear_path(f)) for f in frames]
     rels += [session.rel(session.saturation_path(f)) for f in frames if session.saturation_path(f).is_file()]
     inputs = session.hash_inputs(rels)
@@ -143,7 +181,8 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, force=F
     start = time.perf_counter()
     images, sats = _load(session, frames)
     mask = None if sphere_mask is None else read_mask(sphere_mask)
-    result = calibrate_sphere(images, circle, mask, saturation=sats, K=K)
+    photo = None if outline is None else _read_outline(params["outline"], session, images.shape[1:3])
+    result = calibrate_sphere(images, circle, mask, saturation=sats, K=K, outline=photo)
     intensities, note = _intensities(result, images, sats, K)
     order = [f["light"] for f in frames]
     flags = {order[k]: f"frame {frames[k]['id']}: {why}" for k, why in sorted(result.flags.items())}

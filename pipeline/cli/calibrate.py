@@ -1,4 +1,5 @@
-"""``psrig calibrate SESSION [--circle CX,CY,R[;CX,CY,R]] [--sphere-mask FILE] [--K FILE] [--force]``."""
+"""``psrig calibrate SESSION [--circle CX,CY,R[;CX,CY,R]] [--sphere-mask FILE] [--outline FILE] [--K FILE]
+[--force]``."""
 
 import numpy as np
 
@@ -29,6 +30,9 @@ def register(subparsers):
     p.add_argument("--circle", action="append",
                    help="sphere outline CX,CY,R in pixels, 0-based (repeat, or join with ';', for several)")
     p.add_argument("--sphere-mask", help="PNG mask of the sphere(s): one blob or label per sphere")
+    p.add_argument("--outline", metavar="FILE",
+                   help="evenly (room-)lit photo of the sphere(s) from the same camera position, at the "
+                        "frames' size: the sphere outlines are found on it instead of on the light frames")
     p.add_argument("--K", help="text file with the 3x3 intrinsics (perspective view rays)")
     p.add_argument("--force", action="store_true", help="recompute even when up to date")
     p.set_defaults(func=run)
@@ -46,9 +50,13 @@ def run(args):
 
     circles = parse_circles(args.circle)
     circle = None if not circles else (circles[0] if len(circles) == 1 else circles)
+    if args.outline is not None and (circles or args.sphere_mask):
+        raise InputError("--outline: the sphere outlines come from --outline, --circle or --sphere-mask; "
+                         "give only one of them")
     K = _read_K(args.K) if args.K else None
     session = Session.open(args.session)
-    result = calibrate_session(session, circle=circle, sphere_mask=args.sphere_mask, K=K, force=args.force)
+    result = calibrate_session(session, circle=circle, sphere_mask=args.sphere_mask, K=K,
+                               outline=args.outline, force=args.force)
     if result is None:
         return 0
     for kind in result.kinds:
