@@ -24,7 +24,7 @@ from pathlib import Path
 from .cluster_tiles import WHOLE_IMAGE, assemble_normals, plan_normals, run_tile
 from .errors import InputError, PsrigError, StageError
 from .progress import progress
-from .runner import SessionOutcome, StageOutcome, _run_stage
+from .runner import SessionOutcome, StageOutcome, _run_stage, recorded_options
 from .session import STAGES, Session
 
 __all__ = ["run_batch", "open_client", "summary_table", "TILE_PIXELS", "CONNECT_TIMEOUT"]
@@ -79,7 +79,8 @@ def _session_head(root, options, forced, stop, tile_pixels):
                 continue
             start = time.perf_counter()
             try:
-                plan = plan_normals(session, options.get("normals", {}), force=name in forced,
+                wanted = {**recorded_options(name, session.stage(name)), **options.get(name, {})}
+                plan = plan_normals(session, wanted, force=name in forced,
                                     tile_pixels=tile_pixels)
             except PsrigError as exc:
                 raise StageError(f"stage normals: {exc}") from None

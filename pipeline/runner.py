@@ -17,6 +17,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from .errors import PsrigError, StageError
 from .session import STAGES, Session
 
@@ -119,13 +121,45 @@ def stage_options(*, method=None, t_low=None, integrate_method=None, binning=Non
     return {stage: {k: v for k, v in opts.items() if v is not None} for stage, opts in chosen.items()}
 
 
+def recorded_options(name, record):
+    """Keyword options that reproduce a stage's recorded parameters ({} when none are recorded).
+
+    ``psrig run`` starts from these, so a stage that was run by hand with its own settings (say
+    ``psrig calibrate --outline F`` or ``psrig normals --t-low 0.3``) is neither redone nor
+    overwritten with the defaults; options given to the run replace the recorded ones key by key.
+    """
+    params = dict((record or {}).get("params") or {})
+    if not params or name not in _RECORDED:
+        return {}
+    return _RECORDED[name](params)
+
+
+def _calibrate_kwargs(params):
+    # hashes are recorded beside the files they check; the stage recomputes them
+    kwargs = {k: v for k, v in params.items() if not k.endswith("_sha256") and v is not None}
+    if "K" in kwargs:
+        kwargs["K"] = np.asarray(kwargs["K"], float)
+    return kwargs
+
+
+def _integrate_kwargs(params):
+    kwargs = {"method": params.get("method", "smooth"), **(params.get("options") or {})}
+    if params.get("K") is not None:
+        kwargs["K"] = np.asarray(params["K"], float)
+    return kwargs
+
+
+#: stage -> recorded params to keyword options (the report has nothing a user sets)
+_RECORDED = {"decode": dict, "calibrate": _calibrate_kwargs, "normals": dict, "integrate": _integrate_kwargs}
+
+
 def _run_stage(session, name, options, force, jobs):
     # record_stage stores a new dict; a skipped stage leaves the old one in place (timestamps
     # have one-second resolution, too coarse to tell a fast rerun)
     before = session.stage(name)
     start = time.perf_counter()
     try:
-        note = RUNNERS[name](session, options.get(name, {}), force, jobs)
+        note = RUNNERS[name](session, {**recorded_options(name, before), **options.get(name, {})}, force, jobs)
     except PsrigError as exc:
         raise StageError(f"stage {name}: {exc}") from None
     except ModuleNotFoundError as exc:

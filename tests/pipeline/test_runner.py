@@ -102,3 +102,18 @@ def test_sessions_in_parallel_processes(tmp_path, capsys):
     outcomes = runner.run_sessions(roots, stop="calibrate", jobs=2)
     assert all(ran(o.stages) == [] and not o.error for o in outcomes)
     assert len(STAGES) == 5
+
+
+def test_run_keeps_the_settings_a_stage_was_run_with_by_hand(tmp_path):
+    from pipeline.normals_stage import normals_session
+
+    root = make_session(tmp_path).root
+    runner.run_session(root, stop="calibrate")
+    normals_session(Session.open(root), method="lambert-low", t_low=0.3, show_progress=False)
+    by_hand = Session.open(root).stage("normals")
+    assert ran(runner.run_session(root)) == ["integrate", "report"]
+    assert Session.open(root).stage("normals") == by_hand
+    # an option given to the run replaces the recorded one; the rest is kept
+    assert ran(runner.run_session(root, options={"normals": {"method": "lambert"}}))[0] == "normals"
+    params = Session.open(root).stage("normals")["params"]
+    assert params["method"] == "lambert" and params["t_low"] == 0.3
