@@ -50,3 +50,29 @@ def cook_torrance_images(normals, mask, lights, roughness=0.4, kd=0.7, ks=0.5, n
 def angular_error_deg(a, b, mask):
     cos = np.clip(np.sum(a[mask] * b[mask], axis=1), -1, 1)
     return np.degrees(np.arccos(cos))
+
+
+def selected_problem(size, count, seed, min_elevation_deg, roughness, noise):
+    """A glossy sphere's observations selected as the biquadratic method does, for kernel tests.
+
+    Returns (obs (N, K), weights (N, K), b (N, 3), lights (K, 3), h (K, 3), y (K,)) for the
+    pixels with at least 12 selected observations.
+    """
+    from pipeline.photometric import _select, resolve_selection
+    from pipeline.ps_biquadratic import half_vectors
+
+    normals, mask = sphere_normals(size)
+    lights = hemisphere_lights(count, seed=seed, min_elevation_deg=min_elevation_deg)
+    images = cook_torrance_images(normals, mask, lights, roughness=roughness, noise=noise)
+    obs = images[:, mask].T.astype(np.float64)
+    _, weights, b = _select(obs, None, lights, **resolve_selection(lights, {}))
+    keep = weights.sum(axis=1) >= 12
+    h, y = half_vectors(lights)
+    return obs[keep], weights[keep], b[keep], lights, h, y
+
+
+def row_angles_deg(a, b):
+    """Angles (deg) between the rows of a and b (N, 3), any lengths."""
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=1), -1, 1)))

@@ -3,31 +3,18 @@
 import numpy as np
 import pytest
 
-from pipeline.photometric import _Biquadratic, _select, resolve_selection
-from pipeline.ps_biquadratic import _powers, _schur_blocks, _shared_state, alternate_shared, half_vectors
+from pipeline.photometric import _Biquadratic
+from pipeline.ps_biquadratic import _powers, _schur_blocks, _shared_state, alternate_shared
 from pipeline.ps_lambert import solve3
 from pipeline.ps_select import _mad, select_darkest, shadow_weights
 
-from ps_synthetic import cook_torrance_images, hemisphere_lights, sphere_normals
+from ps_synthetic import row_angles_deg, selected_problem
 
 
 @pytest.fixture(scope="module")
 def narrow():
     """A glossy sphere under a DiLiGenT-like cone of lights, selected as the method does."""
-    normals, mask = sphere_normals(40)
-    lights = hemisphere_lights(48, seed=4, min_elevation_deg=48)
-    images = cook_torrance_images(normals, mask, lights, roughness=0.4, noise=0.002)
-    obs = images[:, mask].T.astype(np.float64)
-    _, weights, b = _select(obs, None, lights, **resolve_selection(lights, {}))
-    keep = weights.sum(axis=1) >= 12
-    h, y = half_vectors(lights)
-    return obs[keep], weights[keep], b[keep], lights, h, y
-
-
-def _angles_deg(a, b):
-    a = a / np.linalg.norm(a, axis=1, keepdims=True)
-    b = b / np.linalg.norm(b, axis=1, keepdims=True)
-    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=1), -1, 1)))
+    return selected_problem(40, 48, seed=4, min_elevation_deg=48, roughness=0.4, noise=0.002)
 
 
 @pytest.mark.parametrize("shape_prior", [0.01, 1e-10])
@@ -41,7 +28,7 @@ def test_alternation_matches_reference(narrow, shape_prior):
                                      prior, shape_prior, 10, 1e-6)
     fast_b, fast_c, fast_rss, fast_moving = alternate_shared(obs, weights, b, lights, h, y, prior=prior,
                                                              shape_prior=shape_prior, max_iter=10, tol=1e-6)
-    assert _angles_deg(ref_b, fast_b).max() < 1e-3
+    assert row_angles_deg(ref_b, fast_b).max() < 1e-3
     np.testing.assert_allclose(fast_rss, ref_rss, rtol=1e-4, atol=1e-12)
     # Pixels right at the stopping threshold may stop one iteration apart.
     assert np.mean(fast_moving != np.isin(np.arange(len(b)), moving)) < 0.01

@@ -4,30 +4,16 @@ import numpy as np
 import pytest
 
 from pipeline import ps_kernels
-from pipeline.photometric import _select, resolve_selection
-from pipeline.ps_biquadratic import alternate_numpy, alternate_shared, half_vectors
+from pipeline.ps_biquadratic import alternate_numpy, alternate_shared
 
-from ps_synthetic import cook_torrance_images, hemisphere_lights, sphere_normals
+from ps_synthetic import row_angles_deg, selected_problem
 
 pytest.importorskip("numba")
 
 
 @pytest.fixture(scope="module")
 def glossy():
-    normals, mask = sphere_normals(36)
-    lights = hemisphere_lights(40, seed=7, min_elevation_deg=40)
-    images = cook_torrance_images(normals, mask, lights, roughness=0.3, noise=0.003)
-    obs = images[:, mask].T.astype(np.float64)
-    _, weights, b = _select(obs, None, lights, **resolve_selection(lights, {}))
-    keep = weights.sum(axis=1) >= 12
-    h, y = half_vectors(lights)
-    return obs[keep], weights[keep], b[keep], lights, h, y
-
-
-def _angles_deg(a, b):
-    a = a / np.linalg.norm(a, axis=1, keepdims=True)
-    b = b / np.linalg.norm(b, axis=1, keepdims=True)
-    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=1), -1, 1)))
+    return selected_problem(36, 40, seed=7, min_elevation_deg=40, roughness=0.3, noise=0.003)
 
 
 @pytest.mark.parametrize("prior_weight", [0.0, 0.05])
@@ -37,7 +23,7 @@ def test_compiled_matches_numpy(glossy, prior_weight):
     ref = alternate_numpy(obs, weights, b, lights, h, y, prior=prior, shape_prior=prior_weight)
     jit = ps_kernels.alternate_shared_jit(obs, weights, b, lights, h, y, prior=prior, shape_prior=prior_weight)
     assert jit is not None
-    assert _angles_deg(ref[0], jit[0]).max() < 1e-3
+    assert row_angles_deg(ref[0], jit[0]).max() < 1e-3
     np.testing.assert_allclose(jit[2], ref[2], rtol=1e-4, atol=1e-12)
     # Pixels right at the stopping threshold may stop one iteration apart.
     assert np.mean(jit[4] != ref[4]) < 0.01
