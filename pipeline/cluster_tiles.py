@@ -285,7 +285,9 @@ def assemble_normals(plan, tile_paths=None):
     extra = {"pixels": int(mask.sum()), "status_counts": counts, **plan.extra}
     if result.shared_shape is not None:
         extra["shared_shape"] = [round(float(v), 6) for v in result.shared_shape]
-    if anchor is not None:  # as the serial stage records it
+    if plan.context.get("shape_check") is not None:  # as the serial stage records it
+        extra["shared_shape_check"] = _plain(plan.context["shape_check"])
+    if anchor is not None:
         extra["specular_anchor"] = _plain({k: anchor[k] for k in ANCHOR_KEYS if k in anchor})
     record = session.record_stage(STAGE, plan.params, plan.inputs, outputs,
                                   seconds=time.time() - plan.started, **extra)

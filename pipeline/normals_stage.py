@@ -150,6 +150,8 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
              "light_model": model}
     if result.shared_shape is not None:
         extra["shared_shape"] = [round(float(v), 6) for v in result.shared_shape]
+    if "shape_check" in result.options:
+        extra["shared_shape_check"] = _plain(result.options["shape_check"])
     anchor = {k: result.options[k] for k in ANCHOR_KEYS if k in result.options}
     if anchor:
         extra["specular_anchor"] = _plain(anchor)
