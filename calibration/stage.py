@@ -172,6 +172,10 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
             return None
         raise StageError(f"{session.root}: no sphere frames and no {LIGHTS}")
     params = _params(circle, sphere_mask, K, outline)
+    missing = [session.linear_path(f) for f in frames if not session.linear_path(f).is_file()]
+    if missing:
+        raise StageError(f"{missing[0]}: missing ({len(missing)} of {len(frames)} sphere frames not decoded); "
+                         "run `psrig decode` first")
     rels = [session.rel(session.linear_path(f)) for f in frames]
     rels += [session.rel(session.saturation_path(f)) for f in frames if session.saturation_path(f).is_file()]
     inputs = session.hash_inputs(rels)

@@ -49,14 +49,19 @@ def expand_glob(pattern, what="--object"):
     return files
 
 
-def check_sizes(files, size=None):
-    """Common (height, width) of image files; InputError naming the first odd file."""
+def check_sizes(files, size=None, reference=None):
+    """Common (height, width) of image files; InputError naming the first odd file.
+
+    ``size`` is the size already established by ``reference`` (a file of another group, e.g.
+    the first object frame when checking sphere frames); by default the first of ``files``.
+    """
+    reference = files[0] if reference is None else reference
     for path in files:
         height, width, _ = image_size(path)
         if size is None:
             size = (height, width)
         elif (height, width) != tuple(size):
-            raise InputError(f"{path}: image is {width}x{height} but {files[0]} is "
+            raise InputError(f"{path}: image is {width}x{height} but {reference} is "
                              f"{size[1]}x{size[0]}; all frames must have the same size")
     return tuple(size)
 
@@ -167,7 +172,7 @@ def import_images(dest, object_glob, *, sphere_glob=None, mask=None, lights=None
     spheres = []
     if sphere_glob:
         spheres = expand_glob(sphere_glob, "--sphere")
-        check_sizes(spheres, size)
+        check_sizes(spheres, size, reference=objects[0])
         if len(spheres) != len(objects):
             raise InputError(f"--sphere {sphere_glob!r}: {len(spheres)} sphere frames for "
                              f"{len(objects)} object frames; one per light is needed")

@@ -19,6 +19,8 @@ def _yaml(session):
 def test_decoded_session_calibrates(tmp_path, capsys):
     scene = sphere_scene(6)
     make_sphere_session(tmp_path / "s", scene, decoded=True)
+    assert main(["calibrate", str(tmp_path / "s")]) == 1   # not decoded yet: says what to run
+    assert "run `psrig decode` first" in capsys.readouterr().err
     assert main(["decode", str(tmp_path / "s")]) == 0
     assert main(["calibrate", str(tmp_path / "s")]) == 0
     session = Session.open(tmp_path / "s")
