@@ -736,7 +736,7 @@ class PtpCamera(Camera):
             if exposure.get(key) is None:
                 continue
             try:
-                want = _PARSE[key](exposure[key])
+                want = exposure_values.PARSERS[key](exposure[key])
             except ValueError as exc:
                 raise CameraConfigError(str(exc)) from None
             setter = self._set_eos if self.path == "canon" else self._set_standard
@@ -774,12 +774,13 @@ class PtpCamera(Camera):
         with self._usb("SetDevicePropValue"):
             payload = ptp.pack_value(desc.datatype, device)
         resp = self._transaction(Op.SetDevicePropValue, (code,), data=payload)
-        self._check_set(key, requested, code, resp, Op.SetDevicePropValue,
+        self._check_set(key, requested, want, code, resp, Op.SetDevicePropValue,
                         lambda: self._allowed_standard(key, desc), device)
         with self._usb("GetDevicePropValue"):
             got = ptp.unpack_value(ptp.Reader(self._data(Op.GetDevicePropValue, code)),
                                    desc.datatype)
-        return self._verified(key, requested, code, device, got, exposure_values.decode_standard(key, got))
+        value = exposure_values.decode_standard(key, got)
+        return self._verified(key, requested, code, device, got, value)
 
     def _standard_value(self, key, requested, want, desc) -> int:
         """The device value to set: the allowed value matching ``want`` (or an error)."""
@@ -794,15 +795,16 @@ class PtpCamera(Camera):
             low, high, step = desc.range
             snapped = min(max(device, low), high)
             snapped = low + round((snapped - low) / max(step, 1)) * max(step, 1)
-            ok = desc.allows(device) or (exposure_values.stop_distance(key, want, exposure_values.decode_standard(key, snapped))
+            decode = exposure_values.decode_standard
+            ok = desc.allows(device) or (exposure_values.stop_distance(key, want, decode(key, snapped))
                                          <= exposure_values.TOLERANCE[key] and desc.allows(snapped))
             if not ok:
-                span = (f"{format_exposure(key, exposure_values.decode_standard(key, low))} .. "
-                        f"{format_exposure(key, exposure_values.decode_standard(key, high))}")
+                span = (f"{format_exposure(key, decode(key, low))} .. "
+                        f"{format_exposure(key, decode(key, high))}")
                 raise self._exposure_error(
                     key, requested, f"{format_exposure(key, want)} is outside what the camera "
                     f"allows ({span}, steps of {step}); nearest allowed: "
-                    f"{format_exposure(key, exposure_values.decode_standard(key, snapped))}")
+                    f"{format_exposure(key, decode(key, snapped))}")
             return device if desc.allows(device) else snapped
         return device
 
@@ -819,11 +821,10 @@ class PtpCamera(Camera):
             key, requested, f"{format_exposure(key, want)} is not one of the {_PLURAL[key]} "
             f"this camera allows now; nearest allowed: {shown} ({span})")
 
-    def _check_set(self, key, requested, code, resp, op, allowed, device):
+    def _check_set(self, key, requested, want, code, resp, op, allowed, device):
         """Turn the answer to a Set operation into a named error."""
         if resp.code == RC.InvalidDevicePropValue:
             pairs = [p for p in allowed() if p[0] != device]
-            want = _PARSE[key](requested)
             _, nearest = choose_value(key, want, pairs)
             raise self._exposure_error(
                 key, requested, f"the camera refused {format_exposure(key, want)} "
@@ -862,7 +863,7 @@ class PtpCamera(Camera):
             raise self._refused(key, requested, want, nearest, pairs)
         resp = self._transaction(Op.EOS_SetDevicePropValueEx,
                                  data=ptp.pack_eos_set_prop(code, device))
-        self._check_set(key, requested, code, resp, Op.EOS_SetDevicePropValueEx, allowed,
+        self._check_set(key, requested, want, code, resp, Op.EOS_SetDevicePropValueEx, allowed,
                         device)
         # the camera reports the new value in a PropValueChanged record of a later GetEvent
         deadline, pause = time.monotonic() + self.timeout, 0.001
@@ -877,15 +878,17 @@ class PtpCamera(Camera):
             raise self._exposure_error(key, requested, f"the camera did not report "
                                        f"{_KEY_NAME[key]} back within {self.timeout:g} s")
         got = self._eos_values[code]
-        return self._verified(key, requested, code, device, got, exposure_values.eos_decode(key, got))
+        return self._verified(key, requested, code, device, got,
+                              exposure_values.eos_decode(key, got))
 
 
 # -- exposure helpers ---------------------------------------------------------------------------
-_PARSE = {"shutter": exposure_values.parse_shutter, "iso": exposure_values.parse_iso, "aperture": exposure_values.parse_aperture}
 _KEY_NAME = {"shutter": "shutter time", "iso": "ISO speed", "aperture": "aperture"}
 _PLURAL = {"shutter": "shutter times", "iso": "ISO speeds", "aperture": "apertures"}
 _STANDARD = {"shutter": PropCode.ExposureTime, "iso": PropCode.ExposureIndex,
              "aperture": PropCode.FNumber}
+
+
 def _prop_name(code: int) -> str:
     try:
         return PropCode(code).name
@@ -894,7 +897,10 @@ def _prop_name(code: int) -> str:
 
 
 def _decode(key, code, device):
-    return exposure_values.eos_decode(key, device) if code >= 0xD000 else exposure_values.decode_standard(key, device)
+    """Nominal value of a device value: Canon EOS codes (0xD...) or a standard property's."""
+    if code >= 0xD000:
+        return exposure_values.eos_decode(key, device)
+    return exposure_values.decode_standard(key, device)
 
 
 #: keys a rig's ``camera:`` section may hold (rig.config can validate against these)

@@ -339,15 +339,14 @@ def _exposure(check, data):
 
     Values stay as written (e.g. '1/30'): the camera driver matches them to what it allows.
     """
-    from rig.exposure import EXPOSURE_KEYS, parse_aperture, parse_iso, parse_shutter
+    from rig.exposure import EXPOSURE_KEYS, PARSERS
 
     exposure = check.value("exposure", _mapping, data)
-    parsers = dict(zip(EXPOSURE_KEYS, (parse_shutter, parse_iso, parse_aperture)))
     for key, value in exposure.items():
-        if key not in parsers:
+        if key not in PARSERS:
             check.fail(f"exposure.{key}", f"unknown key (known: {', '.join(EXPOSURE_KEYS)})")
         try:
-            parsers[key](value)
+            PARSERS[key](value)
         except ValueError as exc:
             check.fail(f"exposure.{key}", str(exc).split(": ", 1)[-1])
     return exposure

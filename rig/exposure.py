@@ -14,7 +14,7 @@ import math
 
 from rig.ptp import PropCode
 
-__all__ = ["EXPOSURE_KEYS", "parse_shutter", "parse_aperture", "parse_iso", "NOMINAL_SERIES",
+__all__ = ["EXPOSURE_KEYS", "PARSERS", "parse_shutter", "parse_aperture", "parse_iso", "NOMINAL_SERIES",
            "EOS_SCALES", "eos_encode", "eos_decode", "eos_table", "nominal", "encode_standard",
            "decode_standard", "stop_distance", "TOLERANCE", "choose_value", "format_shutter",
            "format_aperture", "format_exposure"]
@@ -69,6 +69,9 @@ def parse_iso(value) -> int:
         raise ValueError(f"exposure.iso: {value!r} is not a whole number")
     return int(round(number))
 
+
+#: key -> parser of a rig file's value (seconds, ISO, f-number); ValueError naming the key
+PARSERS = {"shutter": parse_shutter, "iso": parse_iso, "aperture": parse_aperture}
 
 # The nominal third-stop series printed on cameras; Canon codes decode to the nearest entry.
 NOMINAL_SERIES = {
