@@ -97,8 +97,9 @@ def solve_bilateral(problem, *, k=2.0, max_iter=150, tol=1e-4, cg_rtol=1e-3, cg_
     total = rounds = 0
     with progress(total=int(max_iter), desc="bilateral integration", unit="round") as bar:
         for rounds in range(1, int(max_iter) + 1):
-            if rounds == 1 and init == "smooth":
-                z, its = solve_spd(*assemble(problem, forward), rtol=1e-8, maxiter=1000)
+            if rounds == 1 and init == "smooth":  # all weights 0.5: the smooth problem
+                z, first = solve_smooth(problem)
+                its = first["iterations"]
             else:
                 its = pcg_jacobi(grid_system(problem, forward), z, rtol=cg_rtol, maxiter=cg_maxiter)
             total += its
