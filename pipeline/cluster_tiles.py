@@ -33,8 +33,8 @@ from .atomic import atomic_path
 from .errors import InputError, StageError
 from .imageio import read_mask
 from .near_lights import PointLights, observations_at
-from .normals_stage import ANCHOR_KEYS, LIGHTS, STAGE, _auto_mask, _inputs, _object_frames, _plain, \
-    _write_outputs, light_model, load_object_stack, read_stage_lights, stage_params
+from .normals_stage import LIGHTS, STAGE, _auto_mask, _inputs, _object_frames, _write_outputs, \
+    light_model, load_object_stack, model_record, read_stage_lights, stage_params
 from .photometric import STATUS, PhotometricResult, _allocate, _anchor_wanted, _method, _scatter, \
     estimate_normals, resolve_selection
 from .ps_anchor import first_verdict, highlight_mismatch
@@ -261,11 +261,7 @@ def assemble_normals(plan, tile_paths=None):
     """
     session = Session.open(plan.root)
     mask = np.load(plan.scratch("mask.npy"))
-    anchor = _anchor_verdict(plan) if plan.anchor else None
-    if anchor is not None and anchor["anchor"] == "to correct":
-        shutil.rmtree(plan.scratch(), ignore_errors=True)
-        return WHOLE_IMAGE
-    out = None
+    out, mismatch = None, []
     for tile in plan.tiles:
         path = plan.scratch(f"tile-{tile[0]:010d}.npz")
         if not path.is_file():
@@ -277,33 +273,20 @@ def assemble_normals(plan, tile_paths=None):
             if out is None:
                 out = _allocate(mask.shape, chunk["params"].shape[1])
             _scatter(out, tile["idx"], chunk)
+            if plan.anchor:
+                mismatch.append(tile["mismatch"])
+    anchor = first_verdict(np.concatenate(mismatch) if mismatch else np.zeros(0)) if plan.anchor else None
+    if anchor is not None and anchor["anchor"] == "to correct":
+        shutil.rmtree(plan.scratch(), ignore_errors=True)
+        return WHOLE_IMAGE
     result = PhotometricResult(normals=out["normals"], mask=mask, status=out["status"], albedo=out["albedo"],
                                params=out["params"], residual=out["residual"], used=out["used"],
                                method=plan.method, options=plan.options, shared_shape=plan.context.get("shape_paper"))
     outputs = _write_outputs(session, result)
     counts = {name: int(np.sum(result.status[mask] == code)) for name, code in STATUS.items() if code}
     extra = {"pixels": int(mask.sum()), "status_counts": counts, **plan.extra}
-    if result.shared_shape is not None:
-        extra["shared_shape"] = [round(float(v), 6) for v in result.shared_shape]
-    if plan.context.get("shape_check") is not None:  # as the serial stage records it
-        extra["shared_shape_check"] = _plain(plan.context["shape_check"])
-    if anchor is not None:
-        extra["specular_anchor"] = _plain({k: anchor[k] for k in ANCHOR_KEYS if k in anchor})
+    extra.update(model_record(result.shared_shape, plan.context.get("shape_check"), anchor))
     record = session.record_stage(STAGE, plan.params, plan.inputs, outputs,
                                   seconds=time.time() - plan.started, **extra)
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record
-
-
-def _anchor_verdict(plan):
-    """:func:`pipeline.ps_anchor.first_verdict` of all tiles' mismatches (tiles must exist)."""
-    found = []
-    for tile in plan.tiles:
-        path = plan.scratch(f"tile-{tile[0]:010d}.npz")
-        if not path.is_file():
-            raise StageError(f"{path}: normals: tile result is missing")
-        with np.load(path) as data:
-            if "mismatch" in data:
-                found.append(data["mismatch"])
-    return first_verdict(np.concatenate(found) if found else np.zeros(0))
-

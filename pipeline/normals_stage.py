@@ -148,13 +148,7 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     extra = {"pixels": int(result.mask.sum()), "status_counts": counts,
              "lights_used": len(used), "lights_left_out": sorted(int(k) for k in lights.flags),
              "light_model": model}
-    if result.shared_shape is not None:
-        extra["shared_shape"] = [round(float(v), 6) for v in result.shared_shape]
-    if "shape_check" in result.options:
-        extra["shared_shape_check"] = _plain(result.options["shape_check"])
-    anchor = {k: result.options[k] for k in ANCHOR_KEYS if k in result.options}
-    if anchor:
-        extra["specular_anchor"] = _plain(anchor)
+    extra.update(model_record(result.shared_shape, result.options.get("shape_check"), result.options))
     return session.record_stage(STAGE, params, inputs, outputs, seconds=time.perf_counter() - start, **extra)
 
 
@@ -177,6 +171,21 @@ def _write_outputs(session, result):
 #: what :mod:`pipeline.ps_anchor` reports in the result's options, kept in the stage record
 ANCHOR_KEYS = ("cone_scale", "anchor", "mismatch_deg", "highlight_pixels", "probe_mismatch_deg",
                "final_mismatch_deg")
+
+
+def model_record(shared_shape, shape_check, anchor):
+    """Stage-record entries of the fit: the shared shape, its single-material check and the
+    specular anchor's outcome (the keys of :data:`ANCHOR_KEYS` found in ``anchor``), each only
+    when present. The serial and the tiled stage both record through this, so they match."""
+    extra = {}
+    if shared_shape is not None:
+        extra["shared_shape"] = [round(float(v), 6) for v in shared_shape]
+    if shape_check is not None:
+        extra["shared_shape_check"] = _plain(shape_check)
+    found = {k: anchor[k] for k in ANCHOR_KEYS if k in (anchor or {})}
+    if found:
+        extra["specular_anchor"] = _plain(found)
+    return extra
 
 
 def _plain(value):

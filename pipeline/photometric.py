@@ -351,17 +351,13 @@ def single_material_check(obs, weights, b, b_shared, shape, lights, h, y):
         ``tested`` False when the pixels have fewer than :data:`MIN_CHECK_OBS` observations.
     """
     y_arr = np.asarray(y, float)
-    shared = _shared_state(obs, weights, b_shared, shape, lights, h, _powers(y_arr, 2))[0]
+    y3 = _powers(y_arr, 2)
+    shared = _shared_state(obs, weights, b_shared, shape, lights, h, y3)[0]
     if lights.ndim == 2:
-        free = alternate_shared(obs, weights, b, lights, h, y_arr)[2]
+        free = float(np.nansum(alternate_shared(obs, weights, b, lights, h, y_arr)[2]))
     else:  # per-pixel lights: free shapes at the initial normals (no alternation kernel here)
         coeffs = fit_pixel_shapes(obs, weights, b, lights, h, y_arr)
-        albedo = np.linalg.norm(b, axis=1, keepdims=True)
-        n = b / np.maximum(albedo, 1e-300)
-        x, cos = np.einsum("ni,nki->nk", n, h), np.einsum("ni,nki->nk", n, lights)
-        rho = sum(coeffs[:, a, c, None] * x ** a * y_arr ** c for a in range(3) for c in range(3))
-        free = np.sum(weights * (obs - albedo * rho * cos) ** 2, axis=1)
-    free = float(np.nansum(free))
+        free = _shared_state(obs, weights, b, coeffs, lights, h, y3)[0]
     used = np.sum(weights > 0, axis=1)
     expected = float(np.sum(np.maximum(used - 3, 1)) / np.sum(np.maximum(used - 12, 1)))
     ratio = shared / max(free, 1e-300)
