@@ -40,6 +40,8 @@ observations are in memory: about 1 % more CPU time when nothing is corrected.
 
 import numpy as np
 
+from .ps_biquadratic import half_vectors
+
 __all__ = ["scale_cone", "highlight_mismatch", "first_verdict", "anchor_scale", "MIN_PEAK", "LOBE_DEG", "MIN_PIXELS",
            "MAX_CHANGE", "PROBE_STEP"]
 
@@ -98,8 +100,7 @@ def highlight_mismatch(obs, b, lights, min_peak=MIN_PEAK, lobe_deg=LOBE_DEG, val
     slant difference to the centroid that a Gaussian lobe of the fitted width centred on the
     estimated normal gives through the same lights (the light layout's sampling bias cancels).
     """
-    h = lights + np.array([0.0, 0.0, 1.0])
-    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    h, _ = half_vectors(lights)
     albedo = np.linalg.norm(b, axis=1)
     cos_lobe = np.cos(np.radians(lobe_deg))
     # The window must fit in the half-vector cone: slant(n) < max slant(h) - lobe.
