@@ -1,13 +1,15 @@
 """Calibration benchmark: ``python benchmarks/calibration.py [../shared/data/psbox]``.
 
 Prints, per PSBox probe, the angles to the probe's own published directions (median vs the
-0.5 deg target, found circle, no clicks; then with the circle found, also without clicks, on the
-probe's room-lit ref.JPG given as the outline photo) and the two probes' agreement; then, on the simulated rig's sphere
+0.5 deg target, no clicks): from the light frames alone, then through a session that carries the
+probe's room-lit ref.JPG as its outline frame (the circles found there) and the same session
+calibrated with --no-outline; and the two probes' agreement; then, on the simulated rig's sphere
 scene (360 x 480, 32 lights), direction median/max vs 0.2/0.5 deg, intensity error vs 1 % and,
 for near lights, the triangulated distance error vs 2 %.
 """
 
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -18,6 +20,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from calibration.intensities import target_intensities  # noqa: E402
 from calibration.positions import frame_offset  # noqa: E402
 from calibration.sphere import calibrate_sphere  # noqa: E402
+from calibration.stage import calibrate_session  # noqa: E402
+from pipeline.decode import decode_session  # noqa: E402
+from pipeline.importers import import_images  # noqa: E402
 from tests.calibration.sim_session import linear_frames, sphere_scene  # noqa: E402
 
 
@@ -26,37 +31,46 @@ def angles(a, b):
 
 
 def psbox(root):
+    """Per probe: the light frames alone through the Python API (JPEG values), then the session
+    route a user takes (import with the probe's room-lit ref.JPG as the outline frame, decode,
+    calibrate; and calibrate --no-outline); then each route's agreement between the probes."""
     dirs = {}
     for name in ("LightProbe-1", "LightProbe-2"):
         folder = root / name
         frames = np.stack([cv2.imread(str(folder / f"Image_{i:02d}.JPG"))[:, :, ::-1] for i in range(1, 13)])
+        own = np.loadtxt(folder / "light_directions.txt").T
+        xc, yc, r = np.loadtxt(folder / "circle_data.txt")
         start = time.perf_counter()
         result = calibrate_sphere(frames.astype(np.float32) / 255)
         secs = time.perf_counter() - start
-        own = np.loadtxt(folder / "light_directions.txt").T
-        xc, yc, r = np.loadtxt(folder / "circle_data.txt")
-        c = result.circle
-        a = angles(result.directions, own)
-        print(f"psbox {name}: median {np.median(a):.3f} deg (target 0.5, ratio {np.median(a) / 0.5:.2f}), "
-              f"max {a.max():.3f}; circle ({c.cx:.2f}, {c.cy:.2f}, {c.r:.2f}) vs published "
-              f"({xc - 1:.2f}, {frames.shape[1] - yc:.2f}, {r:.2f}); {secs:.2f} s; flags {result.flags}")
-        dirs[name] = result.directions
-        # the same frames with the probe's ref.JPG, the room-lit photo the author clicked on, as
-        # the outline photo (the public route: circles found there, no clicks): isolates the
-        # outline the light frames give from the rest
-        ref = cv2.imread(str(folder / "ref.JPG"))[:, :, ::-1].astype(np.float32) / 255
-        start = time.perf_counter()
-        with_ref = calibrate_sphere(frames.astype(np.float32) / 255, outline=ref)
-        secs = time.perf_counter() - start
-        rc, b = with_ref.circle, angles(with_ref.directions, own)
-        print(f"psbox {name} with the circle found on ref.JPG ({rc.cx:.2f}, {rc.cy:.2f}, {rc.r:.2f}): "
-              f"median {np.median(b):.3f} deg (ratio {np.median(b) / 0.5:.2f}), max {b.max():.3f}; "
-              f"{secs:.2f} s; flags {with_ref.flags}")
-    a = angles(dirs["LightProbe-1"], dirs["LightProbe-2"])
+        c, a = result.circle, angles(result.directions, own)
+        print(f"psbox {name}, light frames only: median {np.median(a):.3f} deg (target 0.5, ratio "
+              f"{np.median(a) / 0.5:.2f}), max {a.max():.3f}; circle ({c.cx:.2f}, {c.cy:.2f}, {c.r:.2f}) vs "
+              f"published ({xc - 1:.2f}, {frames.shape[1] - yc:.2f}, {r:.2f}); {secs:.2f} s; flags {result.flags}")
+        dirs["api", name] = result.directions
+        for route, got in _session_route(folder).items():
+            b = angles(got.directions, own)
+            gc = got.circle
+            print(f"psbox {name}, session, {route}: median {np.median(b):.3f} deg (ratio {np.median(b) / 0.5:.2f}), "
+                  f"max {b.max():.3f}; circle ({gc.cx:.2f}, {gc.cy:.2f}, {gc.r:.2f}); flags {got.flags}")
+            dirs[route, name] = got.directions
     p = angles(np.loadtxt(root / "LightProbe-1/light_directions.txt").T,
                np.loadtxt(root / "LightProbe-2/light_directions.txt").T)
-    print(f"psbox probe agreement: median {np.median(a):.3f} max {a.max():.3f} deg "
-          f"(published files agree to median {np.median(p):.3f})")
+    for route in ("api", "outline frame", "--no-outline"):
+        a = angles(dirs[route, "LightProbe-1"], dirs[route, "LightProbe-2"])
+        print(f"psbox probe agreement ({route}): median {np.median(a):.3f} max {a.max():.3f} deg "
+              f"(published files agree to median {np.median(p):.3f})")
+
+
+def _session_route(folder):
+    """{route: SphereCalibration} of a probe imported as a session with ref.JPG as its outline."""
+    with tempfile.TemporaryDirectory() as tmp:
+        pattern = str(folder / "Image_*.JPG")
+        session = import_images(Path(tmp) / "s", pattern, sphere_glob=pattern, outline=str(folder / "ref.JPG"))
+        decode_session(session, progress=False)
+        quiet = lambda *_: None  # noqa: E731
+        return {"outline frame": calibrate_session(session, echo=quiet),
+                "--no-outline": calibrate_session(session, outline=False, echo=quiet)}
 
 
 def simulated(count=32):

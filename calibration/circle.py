@@ -12,7 +12,7 @@ from scipy import ndimage, optimize
 from pipeline.errors import InputError
 
 __all__ = ["Circle", "find_spheres", "find_sphere", "refine_circle", "circle_from_mask",
-           "fit_circle", "sphere_image", "SphereNotFound"]
+           "fit_circle", "sphere_image", "credible", "SphereNotFound"]
 
 
 class SphereNotFound(InputError):
@@ -217,7 +217,10 @@ def _hough(image, count):
     return [] if found is None else [tuple(c * s) for c in found[0][:want]]
 
 
-def _credible(circle, shape, min_inliers, max_rms):
+def credible(circle, shape, min_inliers=0.4, max_rms=None):
+    """True when ``circle`` (a refined :class:`Circle`) is a sphere outline worth trusting: at
+    least ``min_inliers`` of the rays support it, its RMS edge distance is under ``max_rms``
+    pixels (2 % of the radius by default) and it lies in an image of ``shape`` (H, W)."""
     limit = max_rms if max_rms is not None else max(1.0, 0.02 * circle.r)
     return circle.inliers >= min_inliers and circle.rms <= limit and _inside(circle, shape)
 
@@ -241,7 +244,7 @@ def find_spheres(image, count=None, *, min_inliers=0.4, max_rms=None):
     (:func:`refine_circle`); a refined outline is credible when at least ``min_inliers`` of it
     supports the circle with an RMS edge distance under ``max_rms`` pixels (2 % of the radius
     by default). A candidate inside a larger credible one is dropped (a reflection on that
-    sphere); of overlapping candidates the best supported is kept.
+    sphere); of overlapping candidates the one with the longest supporting outline is kept.
 
     Parameters
     ----------
@@ -271,11 +274,15 @@ def find_spheres(image, count=None, *, min_inliers=0.4, max_rms=None):
             circle = refine_circle(image, seed)
         except SphereNotFound:
             continue
-        if _credible(circle, image.shape, min_inliers, max_rms):
+        if credible(circle, image.shape, min_inliers, max_rms):
             found.append(circle)
     circles = []
     found = [c for c in found if not _nested(c, found)]
-    for circle in sorted(found, key=lambda c: (-c.inliers, c.rms / c.r)):
+    # of overlapping candidates the one with the most supporting outline (in pixels, not as a
+    # share of its own circumference): an arc inside a sphere, say a reflection that runs on
+    # into the stand, can support a larger share of a smaller circle than the limb of the
+    # whole sphere does
+    for circle in sorted(found, key=lambda c: (-c.inliers * c.r, c.rms / c.r)):
         if not _overlaps(circle, circles):
             circles.append(circle)
     if count is not None:

@@ -13,7 +13,8 @@ from scipy import ndimage
 
 from pipeline.errors import InputError, PsrigError
 
-from .circle import Circle, SphereNotFound, circle_from_mask, find_spheres, sphere_image
+from .circle import (Circle, SphereNotFound, circle_from_mask, credible, find_spheres, refine_circle,
+                     sphere_image)
 from .geometry import check_K, mirror, sphere_centre, sphere_points
 from .highlight import highlight_blob, robust_centre, saturation_level
 from .kinds import sphere_kind
@@ -156,13 +157,44 @@ def _outline_grey(outline, shape):
     return np.nan_to_num(grey, nan=0.0, posinf=0.0, neginf=0.0)
 
 
-def _outline_circles(outline, shape, spheres):
-    """Circles found on the outline photo, labelled 'outline'."""
+#: Largest shift between a sphere's circle on the outline photo and on the light frames before
+#: they are taken to show different scenes: this fraction of the radius, and at least
+#: OUTLINE_SHIFT_PX. The limb of a chrome ball mirrors what lies behind it, so its apparent edge
+#: moves with the lighting: PSBox's room-lit photos and light frames differ by 2-3 px on 420 px
+#: spheres (0.7 %), a dark limb crescent by its width. A knocked camera or sphere moves it further.
+OUTLINE_SHIFT, OUTLINE_SHIFT_PX = 0.02, 3.0
+
+
+def _outline_circles(outline, grey, spheres):
+    """Circles found on the outline photo, labelled 'outline', checked against the frames."""
     try:
-        found = find_spheres(_outline_grey(outline, shape), spheres)
+        found = find_spheres(_outline_grey(outline, grey.shape[1:]), spheres)
     except SphereNotFound as exc:
         raise SphereNotFound(f"outline photo: {exc}") from None
+    image = sphere_image(grey)
+    for circ in found:
+        _check_outline_matches(circ, image)
     return [replace(c, method="outline") for c in found]
+
+
+def _check_outline_matches(circ, image):
+    """Raise InputError when the light frames show this sphere clearly elsewhere.
+
+    Frames whose outline is too faint to fit (a dark room, a black background) cannot be
+    compared and pass: the photo is then the only outline there is.
+    """
+    try:
+        seen = refine_circle(image, circ)
+    except SphereNotFound:
+        return
+    if not credible(seen, image.shape, 0.4, None):
+        return
+    shift = max(np.hypot(seen.cx - circ.cx, seen.cy - circ.cy), abs(seen.r - circ.r))
+    if shift > max(OUTLINE_SHIFT * circ.r, OUTLINE_SHIFT_PX):
+        raise InputError(f"outline photo: the sphere at ({circ.cx:.1f}, {circ.cy:.1f}) r {circ.r:.1f} px sits at "
+                         f"({seen.cx:.1f}, {seen.cy:.1f}) r {seen.r:.1f} in the light frames, {shift:.1f} px "
+                         "away; the camera or the sphere moved between them. Retake the photo, or calibrate "
+                         "without it (psrig calibrate --no-outline)")
 
 
 def _circles(grey, circle, mask, spheres, outline=None):
@@ -171,7 +203,7 @@ def _circles(grey, circle, mask, spheres, outline=None):
         other = [name for name, v in (("circle", circle), ("mask", mask)) if v is not None]
         if other:
             raise InputError(f"give the sphere outlines one way only: got outline and {' and '.join(other)}")
-        return [(c, None) for c in _outline_circles(outline, grey.shape[1:], spheres)]
+        return [(c, None) for c in _outline_circles(outline, grey, spheres)]
     if circle is not None:
         return [(c, None) for c in _given(circle)]
     if mask is not None:

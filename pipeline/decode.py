@@ -1,6 +1,6 @@
 """The decode stage: every frame of a session -> ``linear/<id>.exr`` + ``linear/<id>_sat.png``.
 
-Dark and ambient frames are decoded as they are. Lit frames (object, sphere, target) have the
+Dark, ambient and outline frames are decoded as they are. Lit frames (object, sphere, target) have the
 mean ambient frame subtracted when the session has one (it already holds the dark signal), else
 the mean dark frame when it has one. A frame that cannot be decoded is recorded under
 ``failed`` (status 'partial') while the others are decoded; a rerun decodes only what is

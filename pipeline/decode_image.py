@@ -10,7 +10,7 @@ import numpy as np
 from .errors import InputError
 from .imageio import read_image_native
 
-__all__ = ["IMAGE_SUFFIXES", "decode_image", "inverse_gamma_lut", "parse_gamma"]
+__all__ = ["IMAGE_SUFFIXES", "decode_image", "encode_gamma", "inverse_gamma_lut", "parse_gamma"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".exr", ".jpg", ".jpeg")
 
@@ -46,6 +46,17 @@ def inverse_gamma_lut(gamma, levels=256):
     else:
         linear = code ** float(gamma)
     return linear.astype(np.float32)
+
+
+def encode_gamma(linear, gamma):
+    """Display-encode linear values (any shape, 0..1): the inverse of :func:`inverse_gamma_lut`.
+
+    Returns float32 codes in 0..1 (not quantised).
+    """
+    x = np.clip(np.asarray(linear, np.float32), 0, 1)
+    if parse_gamma(gamma) == "srgb":
+        return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055).astype(np.float32)
+    return (x ** (1 / float(gamma))).astype(np.float32)
 
 
 def _to_rgb(pixels, path):

@@ -146,7 +146,7 @@ def _write_truth_normals(session, normals, mask):
     session.set_truth("mask", "truth/mask.png", save=False)
 
 
-def import_images(dest, object_glob, *, sphere_glob=None, mask=None, lights=None):
+def import_images(dest, object_glob, *, sphere_glob=None, mask=None, lights=None, outline=None):
     """Import loose image files into a new session.
 
     Parameters
@@ -162,6 +162,10 @@ def import_images(dest, object_glob, *, sphere_glob=None, mask=None, lights=None
     lights : path, optional
         Light directions: ``.yaml``, RTI ``.lp`` or text (``x y z`` per line, optional count
         line); K rows for K object frames.
+    outline : str, optional
+        Glob of evenly (room-)lit photos of the sphere(s), rig lights off, same camera position
+        and size as the frames: stored as ``outline`` frames, on which calibration finds the
+        sphere circles (their mean when several).
 
     Returns
     -------
@@ -176,12 +180,20 @@ def import_images(dest, object_glob, *, sphere_glob=None, mask=None, lights=None
         if len(spheres) != len(objects):
             raise InputError(f"--sphere {sphere_glob!r}: {len(spheres)} sphere frames for "
                              f"{len(objects)} object frames; one per light is needed")
+    outlines = []
+    if outline:
+        if not sphere_glob:
+            raise InputError(f"--outline {outline!r}: an outline photo is for sphere frames; give --sphere too")
+        outlines = expand_glob(outline, "--outline")
+        check_sizes(outlines, size, reference=objects[0])
     light_set = _read_light_file(lights, len(objects)) if lights else None
     object_mask = _read_mask_file(mask, size) if mask else None
     dest = _check_target(dest)
     session = Session.create(dest, rig={"name": "imported", "source": "image files"})
     frames = _add_frames(session, "object", objects)
     _add_frames(session, "sphere", spheres)
+    for path in outlines:
+        session.add_frame("outline", source=path, save=False)
     if light_set is not None:
         _write_lights(session, light_set, frames)
     if object_mask is not None:

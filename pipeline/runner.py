@@ -136,7 +136,9 @@ def recorded_options(name, record):
 
 def _calibrate_kwargs(params):
     # hashes are recorded beside the files they check; the stage recomputes them
-    kwargs = {k: v for k, v in params.items() if not k.endswith("_sha256") and v is not None}
+    # (and outline_frames names the session's outline frames, which the stage finds itself)
+    kwargs = {k: v for k, v in params.items()
+              if not k.endswith("_sha256") and k != "outline_frames" and v is not None}
     if "K" in kwargs:
         kwargs["K"] = np.asarray(kwargs["K"], float)
     return kwargs

@@ -29,7 +29,9 @@ __all__ = ["Session", "FORMAT", "FRAME_KINDS", "STAGES", "file_sha256", "now_iso
 
 FORMAT = "psrig-session/1"
 MANIFEST = "session.yaml"
-FRAME_KINDS = ("object", "sphere", "dark", "ambient", "target")
+# outline: an evenly (room-)lit photo of the spheres with the rig's lights off, used only to find
+# their circles; like dark and ambient frames it has no light, but nothing is subtracted with it
+FRAME_KINDS = ("object", "sphere", "dark", "ambient", "target", "outline")
 LIT_KINDS = ("object", "sphere", "target")
 STAGES = ("decode", "calibrate", "normals", "integrate", "report")
 FOLDERS = ("raw", "linear", "calibration", "normals", "depth", "report", "truth")
@@ -184,7 +186,7 @@ class Session:
 
         Parameters
         ----------
-        kind : {'object', 'sphere', 'dark', 'ambient', 'target'}
+        kind : {'object', 'sphere', 'dark', 'ambient', 'target', 'outline'}
         data : bytes, optional
             The frame's bytes, exactly as the camera delivered them. Give either ``data`` or
             ``source`` (a file to copy).

@@ -1,5 +1,5 @@
-"""``psrig calibrate SESSION [--circle CX,CY,R[;CX,CY,R]] [--sphere-mask FILE] [--outline FILE] [--K FILE]
-[--force]``."""
+"""``psrig calibrate SESSION [--circle CX,CY,R[;CX,CY,R]] [--sphere-mask FILE] [--outline FILE | --no-outline]
+[--K FILE] [--force]``."""
 
 import numpy as np
 
@@ -30,12 +30,21 @@ def register(subparsers):
     p.add_argument("--circle", action="append",
                    help="sphere outline CX,CY,R in pixels, 0-based (repeat, or join with ';', for several)")
     p.add_argument("--sphere-mask", help="PNG mask of the sphere(s): one blob or label per sphere")
-    p.add_argument("--outline", metavar="FILE",
-                   help="evenly (room-)lit photo of the sphere(s) from the same camera position, at the "
-                        "frames' size: the sphere outlines are found on it instead of on the light frames")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--outline", metavar="FILE",
+                       help="evenly (room-)lit photo of the sphere(s) from the same camera position, at the "
+                            "frames' size: the sphere outlines are found on it instead of on the light "
+                            "frames (default: the session's outline frames, when it has any)")
+    which.add_argument("--no-outline", action="store_true",
+                       help="find the sphere outlines on the light frames even when the session has "
+                            "outline frames")
     p.add_argument("--K", help="text file with the 3x3 intrinsics (perspective view rays)")
     p.add_argument("--force", action="store_true", help="recompute even when up to date")
     p.set_defaults(func=run)
+
+
+_SOURCES = {"fit": "found on the light frames", "outline": "found on the outline photo",
+            "given": "given", "mask": "from the mask"}
 
 
 def _read_K(path):
@@ -56,12 +65,13 @@ def run(args):
     K = _read_K(args.K) if args.K else None
     session = Session.open(args.session)
     result = calibrate_session(session, circle=circle, sphere_mask=args.sphere_mask, K=K,
-                               outline=args.outline, force=args.force)
+                               outline=False if args.no_outline else args.outline, force=args.force)
     if result is None:
         return 0
     for kind in result.kinds:
         print(f"{kind['kind']:6s} sphere at ({kind['cx']:.2f}, {kind['cy']:.2f}) r {kind['r']:.2f} "
-              f"(outline rms {kind['rms_px']:.2f} px, lit share {kind['lit_share']:.3f})")
+              f"(circle {_SOURCES.get(kind['method'], kind['method'])}, outline rms {kind['rms_px']:.2f} px, "
+              f"lit share {kind['lit_share']:.3f})")
     print(result.near_reason)
     dist = result.distances
     for k, (d, res) in enumerate(zip(result.directions, result.residual_deg)):

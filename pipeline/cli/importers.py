@@ -1,7 +1,7 @@
 """``psrig import``: existing data -> a session folder.
 
     psrig import diligent SRC SESSION
-    psrig import images SESSION --object GLOB [--sphere GLOB] [--mask FILE] [--lights FILE]
+    psrig import images SESSION --object GLOB [--sphere GLOB [--outline GLOB]] [--mask FILE] [--lights FILE]
 """
 
 from ..importers import import_diligent, import_images
@@ -27,6 +27,9 @@ def register(subparsers):
     img.add_argument("session", metavar="SESSION", help="session folder to create")
     img.add_argument("--object", required=True, metavar="GLOB", help="object frames")
     img.add_argument("--sphere", metavar="GLOB", help="chrome-sphere frames (same lights)")
+    img.add_argument("--outline", metavar="GLOB",
+                     help="evenly (room-)lit photo(s) of the sphere(s), rig lights off, same camera "
+                          "position: calibration finds the sphere outlines on it")
     img.add_argument("--mask", metavar="FILE", help="object mask image (white = object)")
     img.add_argument("--lights", metavar="FILE",
                      help="light directions: lights.yaml, RTI .lp, or text x y z per line")
@@ -41,7 +44,7 @@ def _run_diligent(args):
 
 def _run_images(args):
     session = import_images(args.session, args.object, sphere_glob=args.sphere, mask=args.mask,
-                            lights=args.lights)
+                            lights=args.lights, outline=args.outline)
     _print(session)
     return 0
 
