@@ -84,9 +84,12 @@ def _session_head(root, options, forced, stop, tile_pixels):
                                     tile_pixels=tile_pixels)
             except PsrigError as exc:
                 raise StageError(f"stage normals: {exc}") from None
-            if plan is not None:
+            if plan == WHOLE_IMAGE:   # not to be tiled: the serial stage, in this task
+                outcome.stages.append(_run_stage(session, name, options, True, 1))
+            elif plan is not None:
                 return outcome, plan
-            outcome.stages.append(StageOutcome(name, False, time.perf_counter() - start))
+            else:
+                outcome.stages.append(StageOutcome(name, False, time.perf_counter() - start))
     except PsrigError as exc:
         outcome.error = str(exc)
     return outcome, None

@@ -46,7 +46,8 @@ __all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_ti
 SCRATCH = "normals/.tiles"
 #: :func:`assemble_normals`' answer when the lights need the specular-peak correction
 #: (:mod:`pipeline.ps_anchor`): one global scale, applied to every pixel, that only a solve of
-#: the whole image can make; the caller then runs the serial normals stage.
+#: the whole image can make; the caller then runs the serial normals stage. :func:`plan_normals`
+#: answers it before any tile for near lights placed at an integrated depth, for the same reason.
 WHOLE_IMAGE = "whole-image"
 
 
@@ -132,7 +133,9 @@ def write_stack(folder, frames, load, name=str):
 
 
 def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=None):
-    """Prepare the tiled normals stage; returns a :class:`TilePlan`, or None when up to date.
+    """Prepare the tiled normals stage; returns a :class:`TilePlan`, None when up to date, or
+    :data:`WHOLE_IMAGE` when the stage must run whole (near lights placed at the integrated
+    depth of a first solve, :mod:`pipeline.near_depth`).
 
     ``options`` are the normals stage options (``method``, ``t_low``, ...; None = default);
     ``chunk`` the pixels per solver call (default: :func:`serial_chunk_size`).
@@ -142,14 +145,18 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=No
     frames = _object_frames(session)
     mask_rel = session.manifest["lights"].get("object_mask")
     lights_model = options.pop("lights_model", "auto")
-    params = stage_params(method, lights_model, options)
+    near_depth = options.pop("near_depth", True)
+    params = stage_params(method, lights_model, options, near_depth)
     inputs = _inputs(session, frames, mask_rel)
     if not force and session.stage_is_current(STAGE, params, inputs):
         return None
     started = time.time()
     lights, used = read_stage_lights(session, frames)
+    model = light_model(lights, lights_model)
     folder = session.root / SCRATCH
     shutil.rmtree(folder, ignore_errors=True)  # tiles of an older plan must not be reused
+    if model == "near" and near_depth:
+        return WHOLE_IMAGE
     folder.mkdir(parents=True)
     peak = write_stack(folder, used, lambda frame: _load_frame(session, frame, lights),
                        name=session.linear_path)
@@ -161,7 +168,6 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=No
     with atomic_path(folder / "mask.npy") as tmp:
         np.save(tmp, mask)
     chosen = [f["light"] for f in used]
-    model = light_model(lights, lights_model)
     directions = _unit_directions(session, lights.directions[chosen])
     solved = resolve_selection(directions, options)
     if model == "near":

@@ -29,10 +29,10 @@ class PointLights:
         Light positions, pixels, session frame (see the module docstring).
     shape : (H, W)
         Image size in pixels.
-    plane_z : float
-        Height of the surface points assumed for the directions (pixels): the object is taken
-        to lie on this plane (its depth is not known before integration). 0 = the plane of the
-        calibration spheres' centres.
+    plane_z : float or ndarray (H, W)
+        Height of the surface points assumed for the directions (pixels, 0 = the plane of the
+        calibration spheres' centres): one plane before the depth is known, or a height per
+        pixel (see :mod:`pipeline.near_depth`).
 
     Notes
     -----
@@ -53,6 +53,11 @@ class PointLights:
             raise InputError(f"near lights: image shape must be (H, W), got {self.shape}")
         if (np.linalg.norm(self.positions, axis=1) < 1e-9).any():
             raise InputError("near lights: a light sits at the frame origin")
+        if np.ndim(self.plane_z):
+            self.plane_z = np.asarray(self.plane_z, float)
+            if self.plane_z.shape != self.shape or not np.isfinite(self.plane_z).all():
+                raise InputError(f"near lights: a depth map must be finite and {self.shape}, got "
+                                 f"shape {self.plane_z.shape}")
 
     def __len__(self):
         return len(self.positions)
@@ -66,9 +71,10 @@ class PointLights:
     def points(self, flat_index):
         """Surface points (N, 3) assumed at the flat pixel indices ``flat_index`` (N,)."""
         h, w = self.shape
-        rows, cols = np.divmod(np.asarray(flat_index), w)
-        return np.stack([cols - (w - 1) / 2.0, (h - 1) / 2.0 - rows,
-                         np.full(rows.shape, self.plane_z, float)], axis=1)
+        flat_index = np.asarray(flat_index)
+        rows, cols = np.divmod(flat_index, w)
+        z = self.plane_z.ravel()[flat_index] if np.ndim(self.plane_z) else np.full(rows.shape, self.plane_z, float)
+        return np.stack([cols - (w - 1) / 2.0, (h - 1) / 2.0 - rows, z], axis=1)
 
     def at(self, flat_index):
         """Directions (N, K, 3) toward the lights and falloff (N, K) at the given pixels.

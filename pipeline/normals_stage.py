@@ -13,6 +13,7 @@ import numpy as np
 from .errors import StageError
 from .imageio import read_image, read_mask, write_image, write_mask, write_normal_png
 from .lightsio import read_lights_yaml
+from .near_depth import refine_near_depth
 from .near_lights import PointLights
 from .photometric import STATUS, estimate_normals
 from .progress import progress as progress_bar
@@ -97,12 +98,14 @@ def light_model(lights, requested="auto"):
     return "directional"
 
 
-def stage_params(method, lights_model, options):
+def stage_params(method, lights_model, options, near_depth=True):
     """The stage record's parameters: method, the options given (not None), the light model
-    when not 'auto' (so records of earlier versions stay current)."""
+    when not 'auto' and ``near_depth`` when off (so records of earlier versions stay current)."""
     params = {"method": method, **{k: v for k, v in sorted(options.items()) if v is not None}}
     if lights_model != "auto":
         params["lights_model"] = lights_model
+    if not near_depth:
+        params["near_depth"] = False
     return params
 
 
@@ -116,17 +119,19 @@ def read_stage_lights(session, frames):
 
 
 def normals_session(session, *, method="biquadratic", force=False, show_progress=True,
-                    lights_model="auto", **options):
+                    lights_model="auto", near_depth=True, **options):
     """Run the normals stage on a session; returns the stage record (None when up to date).
 
     ``options`` go to :func:`pipeline.photometric.estimate_normals` (t_low, t_shadow, reject_k,
     shape_prior, ...). Lights flagged in ``lights.yaml`` are left out and listed in the record.
     ``lights_model`` is 'auto', 'directional' or 'near' (see :func:`light_model`): near lights
-    give per-pixel directions and inverse-square falloff from the calibrated positions.
+    give per-pixel directions and inverse-square falloff from the calibrated positions, at the
+    depth a first solve's normals integrate to when ``near_depth`` (default; see
+    :mod:`pipeline.near_depth`), else on the plane of the calibration spheres.
     """
     frames = _object_frames(session)
     mask_rel = session.manifest["lights"].get("object_mask")
-    params = stage_params(method, lights_model, options)
+    params = stage_params(method, lights_model, options, near_depth)
     inputs = _inputs(session, frames, mask_rel)
     if not force and session.stage_is_current(STAGE, params, inputs):
         return None
@@ -138,16 +143,26 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
         raise StageError(f"{session.path(mask_rel)}: mask size {mask.shape} differs from the frames' {images.shape[1:]}")
     chosen = [f["light"] for f in used]
     model = light_model(lights, lights_model)
-    directions = (PointLights(lights.positions[chosen], images.shape[1:]) if model == "near"
-                  else lights.directions[chosen])
-    with progress_bar(total=int(mask.sum()), desc="normals", unit="px", disable=not show_progress) as bar:
-        result = estimate_normals(images, directions, mask, method=method, valid=valid,
-                                  progress=bar.update, **{k: v for k, v in options.items() if v is not None})
+    passes = 1 if model == "near" and near_depth else 0
+    given = {k: v for k, v in options.items() if v is not None}
+    with progress_bar(total=int(mask.sum()) * (1 + passes), desc="normals", unit="px",
+                      disable=not show_progress) as bar:
+        def solve(directions, pixels):
+            return estimate_normals(images, directions, pixels, method=method, valid=valid,
+                                    progress=bar.update if pixels is mask else None, **given)
+
+        if model == "near":
+            result, depth = refine_near_depth(solve, PointLights(lights.positions[chosen], images.shape[1:]),
+                                              mask, passes=passes)
+        else:
+            result, depth = solve(lights.directions[chosen], mask), None
     outputs = _write_outputs(session, result)
     counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
     extra = {"pixels": int(result.mask.sum()), "status_counts": counts,
              "lights_used": len(used), "lights_left_out": sorted(int(k) for k in lights.flags),
              "light_model": model}
+    if depth is not None and depth["passes"]:
+        extra["near_depth"] = depth
     extra.update(model_record(result.shared_shape, result.options.get("shape_check"), result.options))
     return session.record_stage(STAGE, params, inputs, outputs, seconds=time.perf_counter() - start, **extra)
 

@@ -21,6 +21,10 @@ def register(sub):
     parser.add_argument("--lights-model", choices=("auto", "directional", "near"), default="auto",
                         help="near: per-pixel directions and falloff from calibrated light positions; "
                              "auto (default): near when lights.yaml has positions the calibration kept")
+    parser.add_argument("--near-depth", choices=("on", "off"), default="on",
+                        help="near lights: solve again with the per-pixel directions at the depth the "
+                             "first solve's normals integrate to (on, the default) or keep the object "
+                             "on the plane of the calibration spheres (off)")
     parser.add_argument("--specular-anchor", choices=("auto", "on", "off"), default="auto",
                         help="correct the lights' polar angles where sharp specular peaks show the "
                              "normals' slant to be off (auto, the default: biquadratic under a narrow "
@@ -39,7 +43,7 @@ def run(args):
             raise InputError(f"--t-low must be a fraction in (0, 1] or a percentage, got {args.t_low}")
     session = Session.open(args.session)
     record = normals_session(session, method=args.method, force=args.force, t_low=t_low,
-                             lights_model=args.lights_model,
+                             lights_model=args.lights_model, near_depth=args.near_depth == "on",
                              specular_anchor={"auto": None, "on": True, "off": False}[args.specular_anchor],
                              t_shadow=args.t_shadow, reject_k=args.reject_k, shape_prior=args.shape_prior)
     if record is None:

@@ -301,3 +301,29 @@ def test_batch_corrects_lights_like_the_serial_run(tmp_path, client, monkeypatch
     outcomes = cluster.run_batch([tiled], tile_pixels=1, show_progress=False)
     assert outcomes[0].error == ""
     assert_identical([tiled], [reference])
+
+
+def make_near_session(folder, name):
+    """The glossy hemisphere session with light positions 300 px away in its lights.yaml."""
+    from pipeline.lightsio import LightSet, read_lights_yaml, write_lights_yaml
+
+    root = make_session(folder, name, 72)
+    path = Session.open(root).path("calibration/lights.yaml")
+    base = read_lights_yaml(path)
+    write_lights_yaml(path, LightSet(base.directions, base.intensities, positions=base.directions * 300.0,
+                                     extra={"light_model": "near"}))
+    return root
+
+
+def test_near_lights_at_an_integrated_depth_run_whole_and_match_the_serial_run(tmp_path, client, monkeypatch):
+    _use_client(monkeypatch, client)
+    reference, tiled = (make_near_session(tmp_path / where, "s") for where in ("serial", "tiled"))
+    assert not runner.run_sessions([reference])[0].error
+    assert Session.open(reference).stage("normals")["near_depth"]["passes"] == 1
+    runner.run_session(tiled, stop="calibrate")
+    assert cluster_tiles.plan_normals(Session.open(tiled), {}, tile_pixels=1) == cluster_tiles.WHOLE_IMAGE
+    plan = cluster_tiles.plan_normals(Session.open(tiled), {"near_depth": False}, tile_pixels=1)
+    assert plan.params["near_depth"] is False and len(plan.tiles) > 1
+    outcomes = cluster.run_batch([tiled], tile_pixels=1, show_progress=False)
+    assert outcomes[0].error == ""
+    assert_identical([tiled], [reference])

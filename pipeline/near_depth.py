@@ -1,0 +1,134 @@
+"""Near point lights: the object's depth for the per-pixel light directions, from a first solve.
+
+Per-pixel directions and falloff of near lights depend on where each surface point is. Before
+integration its depth is unknown, so a first solve takes the object on the plane of the
+calibration spheres' centres (:class:`~pipeline.near_lights.PointLights` ``plane_z`` = 0). Its
+normals integrate (orthographically, in pixels) to the surface's relief up to one unknown
+offset: the object's height above that plane. The offset is the value whose solve leaves the
+smallest photometric residual on a fixed sample of pixels (a coarse scan, then a
+golden-section search around the best), and the relief plus that offset is the depth the next
+solve uses.
+
+Measured on the simulated ``sim-near`` rig (lights about 900 px away; the object stands up to
+112 px off the plane): normals 2.27 deg mean on the plane, 1.00 deg with the true depth, and
+1.01 deg with the integrated relief at the offset the residual picks (offset +40 px; the
+residual was lowest there, 0.0041 against 0.0063 at +20 and 0.0060 at +60).
+
+Limits: one offset for the whole mask (each connected component integrates to its own zero
+mean, so separate objects at different heights share it); orthographic relief (a perspective
+``K`` is not used here).
+"""
+
+import numpy as np
+
+from .integrate import integrate_normals
+from .near_lights import PointLights
+from .photometric import STATUS
+
+__all__ = ["refine_near_depth", "SAMPLE_PIXELS", "SCAN_STEPS"]
+
+#: pixels whose mean residual scores an offset (a fixed random sample of the mask)
+SAMPLE_PIXELS = 4000
+#: offsets scanned over +-half the median light distance before the golden-section search
+SCAN_STEPS = 9
+_GOLDEN = (np.sqrt(5) - 1) / 2
+
+
+def refine_near_depth(solve, lights, mask, *, passes=1, sample_pixels=SAMPLE_PIXELS, seed=0, tol=0.5):
+    """Solve with near lights, then again at the depth the first solve's normals give.
+
+    Parameters
+    ----------
+    solve : callable
+        ``solve(lights, mask)`` -> :class:`~pipeline.photometric.PhotometricResult`, the
+        photometric-stereo solve of the caller's images with :class:`PointLights` ``lights``
+        over ``mask`` (H, W) bool.
+    lights : PointLights
+        Calibrated light positions (their ``plane_z`` is the first solve's depth).
+    mask : ndarray (H, W) bool
+        Object pixels.
+    passes : int
+        Depth refinements after the first solve (0 = the first solve only).
+    sample_pixels, seed
+        The pixel sample that scores offsets.
+    tol : float
+        Offset precision, pixels.
+
+    Returns
+    -------
+    result : PhotometricResult
+        The last solve, or an earlier one if a refinement did not lower the mean residual.
+    record : dict
+        ``passes`` done, ``offset_px`` (object height above the spheres' plane, at the mean of
+        its relief), ``residual`` mean per solve, ``kept`` (which solve was returned).
+    """
+    result = solve(lights, mask)
+    residuals = [_mean_residual(result, mask)]
+    record = {"passes": 0, "offset_px": None, "residual": residuals, "kept": 0}
+    sample = _sample(mask, sample_pixels, seed)
+    for _ in range(passes):
+        relief = _relief(result, mask)
+        if relief is None:
+            break
+        offset = _best_offset(solve, lights, relief, sample, tol)
+        refined = solve(_at_depth(lights, relief + offset), mask)
+        residuals.append(_mean_residual(refined, mask))
+        record["passes"] += 1
+        if not residuals[-1] < residuals[record["kept"]]:
+            break  # by its own measure the relief did not help: keep the better solve
+        result, record["kept"], record["offset_px"] = refined, record["passes"], round(float(offset), 2)
+    record["residual"] = [round(float(r), 6) for r in residuals]
+    return result, record
+
+
+def _at_depth(lights, depth):
+    return PointLights(lights.positions, lights.shape, plane_z=depth)
+
+
+def _relief(result, mask):
+    """Orthographic height (H, W) of the solved normals, mean 0, 0 outside; None if nothing solved."""
+    solved = mask & (result.status == STATUS["ok"])
+    if solved.sum() < 20:
+        return None
+    height = integrate_normals(result.normals, result.mask & np.isfinite(result.normals).all(-1))
+    return np.nan_to_num(height - np.nanmean(height[solved]), nan=0.0)
+
+
+def _sample(mask, count, seed):
+    """A fixed random subset of ``mask`` (H, W) bool of at most ``count`` pixels."""
+    flat = np.flatnonzero(mask)
+    pick = np.random.default_rng(seed).choice(flat, min(count, flat.size), replace=False)
+    sample = np.zeros(mask.shape, bool)
+    sample.flat[pick] = True
+    return sample
+
+
+def _mean_residual(result, mask):
+    # over every pixel of the fixed set, not the ones that fitted: which pixels fit (rather
+    # than fall back or stop unconverged) changes with the depth, and those that stop fitting
+    # at a wrong depth are the clearest sign of it
+    return float(np.mean(result.residual[mask]))
+
+
+def _best_offset(solve, lights, relief, sample, tol):
+    """Height above the spheres' plane (pixels) whose solve leaves the least residual on ``sample``."""
+    def score(offset):
+        return _mean_residual(solve(_at_depth(lights, relief + offset), sample), sample)
+
+    reach = 0.5 * float(np.median(np.linalg.norm(lights.positions, axis=1)))
+    grid = np.linspace(-reach, reach, SCAN_STEPS)
+    scores = [score(o) for o in grid]
+    best = int(np.argmin(scores))
+    lo, hi = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
+    a, b = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
+    fa, fb = score(a), score(b)
+    while hi - lo > tol:
+        if fa < fb:
+            hi, b, fb = b, a, fa
+            a = hi - _GOLDEN * (hi - lo)
+            fa = score(a)
+        else:
+            lo, a, fa = a, b, fb
+            b = lo + _GOLDEN * (hi - lo)
+            fb = score(b)
+    return 0.5 * (lo + hi)
