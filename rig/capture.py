@@ -12,7 +12,9 @@ Order: ``dark_000..`` (lights OFF; the simulated rig lets no light reach the sen
 ``ambient_000..`` (lights OFF), ``object_000 .. object_{K-1}`` (light i ON, confirmed by the
 controller, expose, download, atomic write; the manifest is saved at least every
 :data:`MANIFEST_INTERVAL` seconds and when the capture stops), then ``sphere_000..`` the same way
-once the chrome sphere is in place (real rigs ask first; ``sphere=False`` skips them). The
+once the chrome sphere is in place (real rigs ask first; ``sphere=False`` skips them), then,
+with the rig's ``frames: outline: true``, ``outline_000``: lights OFF, the spheres lit evenly by
+the room (real rigs ask first), on which calibration finds their outlines. The
 lights are switched OFF in a ``finally``, on Ctrl-C and on SIGTERM (turned into
 :class:`CaptureInterrupted` while the capture runs).
 
@@ -53,10 +55,13 @@ from rig.camera import CameraError, format_exposure, make_camera
 from rig.lights import LightError, make_light_controller
 
 __all__ = ["capture_session", "plan_frames", "check_raw_file", "CaptureError", "CaptureInterrupted",
-           "Shot", "PARTIAL", "SPHERE_PROMPT", "MANIFEST_INTERVAL"]
+           "Shot", "PARTIAL", "SPHERE_PROMPT", "OUTLINE_PROMPT",
+           "MANIFEST_INTERVAL"]
 
 PARTIAL = "raw/.partial"
 SPHERE_PROMPT = "Place the chrome sphere where the object was (object removed), then press Enter"
+OUTLINE_PROMPT = ("Light the sphere(s) evenly with the room light (the rig's lights stay off; camera and "
+                  "spheres unmoved) for the outline photo, then press Enter")
 _TEMP_FILE = re.compile(r"^\..+\.tmp(\.[^.]*)?$")  # pipeline.atomic's temporary names
 #: Seconds between manifest saves during a capture (0: after every frame, the default; a manifest
 #: save costs a few ms with libyaml). The raw files are written atomically at once either way; a
@@ -114,6 +119,8 @@ def plan_frames(rig_config, sphere=True):
     plan += [Shot(f"object_{i:03d}", "object", i) for i in range(count)]
     if sphere:
         plan += [Shot(f"sphere_{i:03d}", "sphere", i) for i in range(count)]
+        if frames.get("outline", False):
+            plan.append(Shot("outline_000", "outline"))
     return plan
 
 
@@ -434,16 +441,16 @@ def _capture_frames(session, rig_config, devices, todo, *, total, show, on_promp
 
     Returns the number of frames taken (sphere frames the operator declined are not).
     """
-    ok, asked, saved, before = False, False, time.monotonic(), len(session.frames())
+    ok, asked, saved, before = False, set(), time.monotonic(), len(session.frames())
     try:
         with progress_bar(total=total, desc="capture", unit="frame",
                           disable=None if show else True) as bar:
             bar.update(total - len(todo))
             for shot in todo:
-                if shot.kind == "sphere" and not asked:
-                    asked = True
-                    if not _sphere_ready(devices, on_prompt, echo):
-                        echo("capture: sphere frames skipped; --resume captures them later")
+                if shot.kind in _PROMPTS and shot.kind not in asked:
+                    asked.add(shot.kind)
+                    if not _scene_ready(devices, shot.kind, on_prompt):
+                        echo(f"capture: {shot.kind} frames skipped; --resume captures them later")
                         break
                 _capture_one(session, rig_config, devices, shot)
                 if time.monotonic() - saved >= MANIFEST_INTERVAL:
@@ -459,18 +466,24 @@ def _capture_frames(session, rig_config, devices, todo, *, total, show, on_promp
     return len(session.frames()) - before
 
 
-def _sphere_ready(devices, on_prompt, echo):
-    """Lights off, then the sphere: the simulator switches scene, an operator is asked."""
+#: frame kind -> what the operator is asked before the first frame of that kind
+_PROMPTS = {"sphere": SPHERE_PROMPT, "outline": OUTLINE_PROMPT}
+
+
+def _scene_ready(devices, kind, on_prompt):
+    """Lights off, then the scene for ``kind`` frames: the simulator switches scene, an
+    operator is asked (False: skip those frames)."""
     devices.lights.off()
     if devices.sim is not None:
-        devices.sim.set_scene("sphere")
+        devices.sim.set_scene(devices.sim.scene_for(kind))
         return True
+    prompt = _PROMPTS[kind]
     if on_prompt is not None:
-        return bool(on_prompt(SPHERE_PROMPT))
+        return bool(on_prompt(prompt))
     if not sys.stdin or not sys.stdin.isatty():
-        raise CaptureError(f"{SPHERE_PROMPT!r} needs a terminal; answer it in advance with --yes, "
-                           "or skip the sphere with --no-sphere")
-    answer = input(f"{SPHERE_PROMPT} (or type 'skip'): ")
+        skip = "skip the sphere with --no-sphere" if kind == "sphere" else "set the rig's frames: outline: false"
+        raise CaptureError(f"{prompt!r} needs a terminal; answer it in advance with --yes, or {skip}")
+    answer = input(f"{prompt} (or type 'skip'): ")
     return answer.strip().lower() not in ("skip", "s", "n", "no")
 
 

@@ -94,9 +94,10 @@ class CameraConfig(Section):
 
 
 class FramesConfig(Section):
-    """A rig's ``frames:`` section: ``dark``, ``ambient`` (frame counts), ``sphere`` (bool)."""
+    """A rig's ``frames:`` section: ``dark``, ``ambient`` (frame counts), ``sphere`` and
+    ``outline`` (bools: an evenly room-lit photo of the spheres after their frames)."""
 
-    DEFAULTS = {"dark": 1, "ambient": 0, "sphere": True}
+    DEFAULTS = {"dark": 1, "ambient": 0, "sphere": True, "outline": False}
 
 
 @dataclass
@@ -229,7 +230,7 @@ _CAMERA_KEYS = {"driver": _choice("ptp", "sim"), "vendor_id": _usb_id, "product_
                 "path": _choice(*CAMERA_PATHS), "timeout": _number(), "busy_retries": _int(0, 100),
                 "chunk_size": _int(512), "delete_after_download": _boolean,
                 "busy_backoff": _number()}
-_FRAME_KEYS = {"dark": _int(0, 1000), "ambient": _int(0, 1000), "sphere": _boolean}
+_FRAME_KEYS = {"dark": _int(0, 1000), "ambient": _int(0, 1000), "sphere": _boolean, "outline": _boolean}
 _RIG_KEYS = ("description", "lights", "camera", "exposure", "frames", "raw_format", "scene")
 _GEOMETRY = ("directions", "positions", "lp", "rings")
 

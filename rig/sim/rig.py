@@ -53,7 +53,7 @@ from rig.sim.scene import DEFAULT_SHAPE, Scene, default_lights
 __all__ = ["SimulatedRig", "SCENE_KEYS", "SCENES", "parse_faults", "split_faults", "jitter_directions"]
 
 SCENE_KEYS = ("shape", "seed", "light_jitter_deg", "distance", "exposure_seconds")
-SCENES = ("object", "sphere", "dark")
+SCENES = ("object", "sphere", "dark", "outline")
 SPHERES_TRUTH = "truth/spheres.yaml"
 _CAMERA_OPTIONS = ("timeout", "busy_retries", "busy_backoff", "chunk_size", "delete_after_download")
 _LIGHT_OPTIONS = ("timeout", "write_timeout", "retries")
@@ -284,11 +284,12 @@ class SimulatedRig:
 
     # -- scenes and frames ---------------------------------------------------------------------
     def scene_for(self, kind):
-        """The scene a frame kind is shot in: 'dark', 'sphere' or 'object'."""
-        return {"dark": "dark", "sphere": "sphere", "target": "sphere"}.get(kind, "object")
+        """The scene a frame kind is shot in: 'dark', 'sphere', 'outline' or 'object'."""
+        return {"dark": "dark", "sphere": "sphere", "target": "sphere", "outline": "outline"}.get(kind, "object")
 
     def set_scene(self, name):
-        """Switch what the camera sees: 'object', 'sphere' or 'dark' (no light reaches it)."""
+        """Switch what the camera sees: 'object', 'sphere', 'dark' (no light reaches it) or
+        'outline' (the sphere scene lit evenly by the room, the rig's lights off)."""
         if name not in SCENES:
             raise ValueError(f"unknown scene {name!r}; expected one of {', '.join(SCENES)}")
         self.scene = name
@@ -313,10 +314,14 @@ class SimulatedRig:
         light = self.firmware.lit
         if self.settings["exposure_seconds"]:
             time.sleep(self.settings["exposure_seconds"])
+        gain = self.backend.camera.exposure_gain()
+        if self.scene == "outline":
+            scene = self.scenes["sphere"]
+            linear = scene.render_room() * np.float32(gain)
+            return scene.dng_from_mosaic(scene.mosaic_from_linear(linear, key=(0, 2, int(shot))))  # 2: not a dark (0) or lit (1) key
         scene, ambient = self.scenes["object" if self.scene == "dark" else self.scene], True
         if self.scene == "dark":
             light, ambient = None, False
-        gain = self.backend.camera.exposure_gain()
         if gain == 1.0:  # the factory shutter: bit-identical to the images before exposure control
             return scene.render_dng(light, ambient=ambient, shot=shot)
         # light collected scales with the shutter time; noise and clipping act on the result

@@ -28,6 +28,10 @@ from . import materials, shapes
 
 __all__ = ["Scene", "Sensor", "default_lights", "DEFAULT_SHAPE"]
 
+#: the room-lit outline photo (:meth:`Scene.render_room`), radiance before exposure: the wall,
+#: a chrome surface's mirrored room (base + overhead gain), a matte one's light (base + overhead)
+ROOM_WALL, ROOM_MIRROR, ROOM_SKY = 0.5, (0.08, 0.1), (0.45, 0.3)
+
 #: Sensor size (rows, columns) of the default scenes.
 DEFAULT_SHAPE = (360, 480)
 _KIND_CODE = {"object": 1, "spheres": 2}
@@ -262,6 +266,27 @@ class Scene:
             out[geometry.mask] += self._lit(self._check_light(light))
         out *= np.float32(self.exposure)
         return out
+
+    def render_room(self):
+        """Linear image (H, W, 3) of the scene under even room light, the rig's lights off:
+        what an outline photo records, before exposure scaling's noise.
+
+        A lit wall at :data:`ROOM_WALL` behind; a chrome surface mirrors a dim room, a little
+        brighter overhead; a matte one shows its albedo under a sky-like light. Edges are
+        anti-aliased by the geometry's coverage.
+        """
+        g = self.geometry
+        n = g.normals
+        mirror = self.lobes.get("mirror", {}).get("weight", np.zeros(self.shape))
+        chrome = np.clip(mirror, 0, 1)[..., None]
+        # reflected view ray of an orthographic camera (view (0, 0, 1)): its y component
+        up = 2 * n[..., 2] * n[..., 1]
+        env = ROOM_MIRROR[0] + ROOM_MIRROR[1] * np.clip(up, 0, None)
+        matte = self.albedo * (ROOM_SKY[0] + ROOM_SKY[1] * n[..., 1])[..., None]
+        surface = chrome * env[..., None] + (1 - chrome) * matte
+        cover = g.coverage[..., None]
+        out = ROOM_WALL * (1 - cover) + surface * cover
+        return (out * self.exposure).astype(np.float32)
 
     def _check_light(self, light):
         light = int(light)
