@@ -7,6 +7,7 @@ from pipeline.errors import InputError
 from pipeline.near_depth import refine_near_depth
 from pipeline.near_lights import PointLights
 from pipeline.photometric import estimate_normals
+from rig.sim.shapes import pixel_grid
 
 
 def _raised_dome(height=40.0, distance=220.0, shape=(72, 88), k=16):
@@ -14,8 +15,7 @@ def _raised_dome(height=40.0, distance=220.0, shape=(72, 88), k=16):
     under point lights ``distance`` px from the origin: images (K, H, W), lights, mask, normals,
     true depth (H, W)."""
     h, w = shape
-    rows, cols = np.mgrid[0:h, 0:w]
-    x, y = cols - (w - 1) / 2.0, (h - 1) / 2.0 - rows
+    x, y = pixel_grid(shape)   # the session frame of PointLights
     r = 0.6 * min(h, w)
     d2 = (x * x + y * y) / (r * r)
     mask = d2 < 0.6

@@ -1,4 +1,5 @@
-"""Fixtures for the light-controller and rig-config tests (all named ``lights_*``)."""
+"""Fixtures for the light-controller and rig-config tests (named ``lights_*``) and a rig that
+is not the simulator (``bench_rig``)."""
 
 import pytest
 
@@ -33,3 +34,32 @@ def lights_rigs_file(tmp_path):
         path.write_text(text, encoding="utf-8")
         return path
     return write
+
+
+@pytest.fixture
+def bench_rig(tmp_path, monkeypatch):
+    """A rig that is not the simulator (3 simulated lights, a PTP camera on a simulated USB
+    backend whose every capture is one rendered DNG), so capture asks its operator; built from
+    its ``frames:`` text, e.g. ``bench_rig("{dark: 0, ambient: 1, sphere: true}")``."""
+    from rig.camera import PtpCamera
+    from rig.config import get_rig
+    from rig.sim.rig import SimulatedRig
+    from rig.sim.usb_camera import make_backend
+
+    def make(frames):
+        path = tmp_path / "bench.yaml"
+        path.write_text(f"""
+rigs:
+  bench:
+    lights: {{driver: sim, count: 3, reset_delay: 0, timeout: 0.4, rings: [{{elevation: 50, count: 3}}]}}
+    camera: {{driver: ptp, vendor_id: 0x1209, product_id: 0x7053}}
+    frames: {frames}
+  picture:
+    lights: {{driver: sim, count: 3, rings: [{{elevation: 50, count: 3}}]}}
+    camera: {{driver: sim}}
+    scene: {{shape: [48, 64]}}
+""", encoding="utf-8")
+        dng = SimulatedRig(get_rig("picture", path)).scenes["object"].render_dng(0)
+        monkeypatch.setattr("rig.capture.make_camera", lambda config: PtpCamera(backend=make_backend(lambda: dng)))
+        return get_rig("bench", path)
+    return make

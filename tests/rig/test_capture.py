@@ -365,22 +365,8 @@ def test_cli_kill_9_at_random_moments_then_resume(tmp_path, rigs_path):
 
 # -- a rig that is not the simulator: prompts -----------------------------------------------------
 
-def test_hardware_path_asks_for_the_sphere(tmp_path, monkeypatch, rig8):
-    from rig.camera import PtpCamera
-    from rig.sim.usb_camera import make_backend
-
-    rigs = tmp_path / "bench.yaml"
-    rigs.write_text("""
-rigs:
-  bench:
-    lights: {driver: sim, count: 3, reset_delay: 0, timeout: 0.4, rings: [{elevation: 50, count: 3}]}
-    camera: {driver: ptp, vendor_id: 0x1209, product_id: 0x7053}
-    frames: {dark: 0, ambient: 1, sphere: true}
-""")
-    rig = get_rig("bench", rigs)
-    dng = SimulatedRig(rig8).scenes["object"].render_dng(0)
-    monkeypatch.setattr("rig.capture.make_camera",
-                        lambda config: PtpCamera(backend=make_backend(lambda: dng)))
+def test_hardware_path_asks_for_the_sphere(tmp_path, monkeypatch, bench_rig):
+    rig = bench_rig("{dark: 0, ambient: 1, sphere: true}")
     asked = []
     session = capture_session(tmp_path / "a", rig, on_prompt=lambda m: asked.append(m) or False, **QUIET)
     assert asked and "sphere" in asked[0]

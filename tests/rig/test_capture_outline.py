@@ -66,22 +66,8 @@ def test_simulated_outline_frame_gives_the_circles(tmp_path, rig):
     assert errors[0] < 0.5 and errors[0] < errors[1] + 0.05
 
 
-def test_real_rig_asks_for_the_room_light_and_can_skip_then_resume(tmp_path, rig, monkeypatch):
-    from rig.camera import PtpCamera
-    from rig.sim.rig import SimulatedRig
-    from rig.sim.usb_camera import make_backend
-
-    path = tmp_path / "bench.yaml"
-    path.write_text("""
-rigs:
-  bench:
-    lights: {driver: sim, count: 3, reset_delay: 0, timeout: 0.4, rings: [{elevation: 50, count: 3}]}
-    camera: {driver: ptp, vendor_id: 0x1209, product_id: 0x7053}
-    frames: {dark: 0, ambient: 0, sphere: true, outline: true}
-""")
-    bench = get_rig("bench", path)
-    dng = SimulatedRig(rig).scenes["object"].render_dng(0)
-    monkeypatch.setattr("rig.capture.make_camera", lambda config: PtpCamera(backend=make_backend(lambda: dng)))
+def test_real_rig_asks_for_the_room_light_and_can_skip_then_resume(tmp_path, monkeypatch, bench_rig):
+    bench = bench_rig("{dark: 0, ambient: 0, sphere: true, outline: true}")
     asked = []
     session = capture_session(tmp_path / "a", bench, on_prompt=lambda m: asked.append(m) or m != OUTLINE_PROMPT,
                               **QUIET)
