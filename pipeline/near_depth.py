@@ -19,16 +19,21 @@ mean, so separate objects at different heights share it); orthographic relief (a
 ``K`` is not used here).
 """
 
+import cv2
 import numpy as np
 
 from .integrate import integrate_normals
 from .near_lights import PointLights
 from .photometric import STATUS
 
-__all__ = ["refine_near_depth", "SAMPLE_PIXELS", "SCAN_STEPS"]
+__all__ = ["refine_near_depth", "RELIEF_PIXELS", "SAMPLE_PIXELS", "SCAN_STEPS"]
 
 #: pixels whose mean residual scores an offset (a fixed random sample of the mask)
 SAMPLE_PIXELS = 4000
+#: largest normal map integrated as it is; larger ones are integrated on block means
+RELIEF_PIXELS = 250_000
+#: statuses without a normal to integrate
+_UNSOLVED = (STATUS["background"], STATUS["too_few"])
 #: offsets scanned over +-half the median light distance before the golden-section search
 SCAN_STEPS = 9
 _GOLDEN = (np.sqrt(5) - 1) / 2
@@ -85,13 +90,34 @@ def _at_depth(lights, depth):
     return PointLights(lights.positions, lights.shape, plane_z=depth)
 
 
-def _relief(result, mask):
-    """Orthographic height (H, W) of the solved normals, mean 0, 0 outside; None if nothing solved."""
-    solved = mask & (result.status == STATUS["ok"])
+def _relief(result, mask, max_pixels=RELIEF_PIXELS):
+    """Orthographic height (H, W) of the solved normals, mean 0 over them, 0 elsewhere; None
+    when too few pixels were solved. Normal maps of more than ``max_pixels`` are integrated
+    on f x f block means (heights times f, then interpolated back): the directions to lights
+    hundreds of pixels away hardly change over a block, and the whole-image solve stays small.
+    """
+    solved = mask & np.isfinite(result.normals).all(-1) & ~np.isin(result.status, _UNSOLVED)
     if solved.sum() < 20:
         return None
-    height = integrate_normals(result.normals, result.mask & np.isfinite(result.normals).all(-1))
+    f = max(1, int(np.ceil(np.sqrt(solved.sum() / max_pixels))))
+    normals = np.where(solved[..., None], result.normals, 0.0)
+    if f > 1:
+        normals, solved_small = _block_mean(normals, f), _block_mean(solved.astype(float), f) > 0.5
+        height = integrate_normals(normals, solved_small) * f
+        height = cv2.resize(np.nan_to_num(height - np.nanmean(height), nan=0.0), mask.shape[::-1],
+                            interpolation=cv2.INTER_LINEAR)
+    else:
+        height = integrate_normals(normals, solved)
     return np.nan_to_num(height - np.nanmean(height[solved]), nan=0.0)
+
+
+def _block_mean(image, f):
+    """Means of f x f blocks of ``image`` (H, W, ...), the last partial blocks padded by edge values."""
+    h, w = image.shape[:2]
+    pad = [(0, -h % f), (0, -w % f)] + [(0, 0)] * (image.ndim - 2)
+    image = np.pad(image, pad, mode="edge")
+    shape = (image.shape[0] // f, f, image.shape[1] // f, f) + image.shape[2:]
+    return image.reshape(shape).mean(axis=(1, 3))
 
 
 def _sample(mask, count, seed):
