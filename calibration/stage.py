@@ -24,6 +24,7 @@ from .sphere import calibrate_sphere
 __all__ = ["calibrate_session", "LIGHTS", "LP", "OVERLAY"]
 
 LIGHTS, LP, OVERLAY = "calibration/lights.yaml", "calibration/lights.lp", "calibration/overlay.png"
+OVERLAY_OUTLINE = "calibration/overlay_outline.png"
 
 
 def _load(session, frames):
@@ -159,11 +160,17 @@ def _read_outline(path, session, shape):
     return image
 
 
-def _overlays(session, images, result):
-    """Write the whole-view overlay and one close-up per sphere; returns their paths."""
+def _overlays(session, images, result, photo=None):
+    """Write the whole-view overlay, one close-up per sphere and, when the circles were found on
+    an outline photo, the circles on it; returns their paths."""
     view = images.max(0)
     rels = [OVERLAY]
     write_overlay(session.path(OVERLAY), view, result.circles + result.targets, result.highlights, result.flags)
+    if photo is not None:
+        rels.append(OVERLAY_OUTLINE)
+        write_overlay(session.path(OVERLAY_OUTLINE), photo, result.circles + result.targets, [], {})
+    else:  # an earlier run's, on a photo no longer used: the report must not show it
+        session.path(OVERLAY_OUTLINE).unlink(missing_ok=True)
     names = [f"calibration/overlay_chrome{s}.png" for s in range(len(result.circles))]
     names += [f"calibration/overlay_matte{s}.png" for s in range(len(result.targets))]
     spots = list(result.highlights) + [None] * len(result.targets)
@@ -246,7 +253,7 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
     names = [objects[i].get("source", objects[i]["file"].split("/")[-1]) if i in objects else frames[k]["id"]
              for k, i in enumerate(order)]
     write_lp(session.path(LP), names, directions)
-    outputs = [LIGHTS, LP] + _overlays(session, images, result)
+    outputs = [LIGHTS, LP] + _overlays(session, images, result, photo)
     session.record_stage("calibrate", params, inputs, outputs, seconds=time.perf_counter() - start,
                          flagged=flags, light_model=lights.extra["light_model"])
     if flags:

@@ -61,8 +61,10 @@ def test_imported_outline_frame_is_used_and_can_be_declined(tmp_path, scene, cap
     assert _record(session)["params"]["outline_frames"] == [outline[0]["id"]]
     assert main(["run", str(session.root), "--from", "calibrate", "--to", "calibrate"]) == 0
     assert _methods(session) == {"outline"}
+    assert session.path("calibration/overlay_outline.png").is_file()
     assert main(["calibrate", str(session.root), "--no-outline"]) == 0
     assert _methods(session) == {"fit"} and _record(session)["params"]["outline"] is False
+    assert not session.path("calibration/overlay_outline.png").exists()
     # psrig run, rerunning the stage, keeps the photo declined (the recorded setting is replayed)
     capsys.readouterr()
     assert main(["run", str(session.root), "--from", "calibrate", "--to", "calibrate"]) == 0
