@@ -10,6 +10,9 @@ Methods are registered by name in :data:`METHODS` (one dispatcher, :func:`estima
     and the measurements behind its defaults. Under a narrow light cone, where sharp specular
     peaks show the normals' slant to be off, the lights' polar angles are corrected once
     (:mod:`pipeline.ps_anchor`, option ``specular_anchor``; reported in ``result.options``).
+    When the object fails the single-material check (:func:`single_material_check`) on that
+    automatic narrow-cone path, every pixel falls back to the paper's darkest-fraction rule
+    without the prior (``result.options["shape_check"]["fallback"]``).
 ``lambert``
     Lambertian least squares on all valid observations (the classic baseline).
 ``lambert-low``
@@ -36,7 +39,7 @@ from threadpoolctl import threadpool_limits
 
 from .errors import InputError
 from .near_lights import PointLights, observations_at
-from .ps_anchor import anchor_scale, highlight_mismatch
+from .ps_anchor import anchor_scale, first_verdict, highlight_mismatch
 from .ps_biquadratic import _powers, _shared_state, alternate_shared, fit_pixel_shapes, fit_shared_shape, \
     gauss_newton_normals, half_vectors, to_paper_order, unit
 from .ps_lambert import lambert_weighted
@@ -193,7 +196,8 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     if near is not None:
         lights = near.central_directions
     options = resolve_selection(lights, options)
-    anchor = _anchor_wanted(method, options.pop("specular_anchor", "auto"), options, lights, near)
+    specular_anchor = options.pop("specular_anchor", "auto")
+    anchor = _anchor_wanted(method, specular_anchor, options, lights, near)
 
     runs = []
 
@@ -204,16 +208,38 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
                     progress if len(runs) == 1 else None, anchor, options)
 
     if anchor:
-        (out, shared), info = anchor_scale(solve, lights)
+        (out, shared), info = _anchored(solve, lights, insist=specular_anchor is True)
         options.update(info)
     else:
         out, shared = solve(lights)[0]
     if shared["shape_check"] is not None:
         options["shape_check"] = shared["shape_check"]
+    if shared["select"]:  # the darkest-fraction fallback ran: report the options that did
+        options.update(shared["select"], shape_prior=0.0)
     return PhotometricResult(
         normals=out["normals"], mask=mask, status=out["status"], albedo=out["albedo"], params=out["params"],
         residual=out["residual"], used=out["used"], method=method, options=options,
         seconds=time.perf_counter() - start, shared_shape=shared["shape_paper"])
+
+
+def _anchored(solve, lights, insist=False):
+    """``anchor_scale`` on ``solve``, except after the darkest-fraction fallback.
+
+    The fallback (``_Biquadratic.prepare``) is known only after the first solve. Its normals
+    are then measured and reported (as the tiled stage reports them, from the same first
+    verdict) but not corrected unless the caller insists (``specular_anchor=True``): the
+    one measured false correction of the anchor came from a darkest-rule solve, and an object
+    that failed the one-material check is where a local specular bias is likeliest to pass for
+    a global one.
+    """
+    first = solve(lights)
+    if first[0][1]["select"] and not insist:
+        info = first_verdict(first[1])
+        if info["anchor"] == "to correct":
+            info["anchor"] = "not corrected: darkest fallback"
+        return first[0], info
+    replay = [first]
+    return anchor_scale(lambda run_lights: replay.pop() if replay else solve(run_lights), lights)
 
 
 def _anchor_wanted(method, specular_anchor, options, lights, near):
@@ -281,7 +307,7 @@ def _run(solver, images, lights, near, mask, valid, chunk_size, workers, progres
                            if hasattr(solver, "prepare") else None)
         for future in [pool.submit(work, idx) for idx in chunks]:
             future.result()
-    shared = {key: context.get(key) for key in ("shape_paper", "shape_check")}
+    shared = {key: context.get(key) for key in ("shape_paper", "shape_check", "select")}
     return (out, shared), (np.concatenate(mismatch) if mismatch else np.zeros(0))
 
 
@@ -293,6 +319,15 @@ class _Context:
 
     def get(self, key, default=None):
         return default if self._future is None else self._future.result().get(key, default)
+
+    def known(self):
+        """The context if it is ready, else an empty dict (never waits)."""
+        return self._future.result() if self._future is not None and self._future.done() else {}
+
+
+def _known(context):
+    """What a context (a plain dict, a :class:`_Context` or None) holds already, without waiting."""
+    return context.known() if isinstance(context, _Context) else (context or {})
 
 
 def _allocate(shape, n_params):
@@ -355,9 +390,13 @@ def single_material_check(obs, weights, b, b_shared, shape, lights, h, y):
     shared = _shared_state(obs, weights, b_shared, shape, lights, h, y3)[0]
     if lights.ndim == 2:
         free = float(np.nansum(alternate_shared(obs, weights, b, lights, h, y_arr)[2]))
-    else:  # per-pixel lights: free shapes at the initial normals (no alternation kernel here)
-        coeffs = fit_pixel_shapes(obs, weights, b, lights, h, y_arr)
-        free = _shared_state(obs, weights, b, coeffs, lights, h, y3)[0]
+    else:  # per-pixel lights: the same alternation, with the per-pixel steps
+        # (free shapes at the initial normals alone leave more residual: on the two-material
+        # object of tests/pipeline/test_shape_check.py the ratio read 3.47 there, 6.24 alternated)
+        b_free, coeffs, rss = b.copy(), np.zeros((len(obs), 3, 3)), np.zeros(len(obs))
+        _Biquadratic._alternate(obs, weights, b_free, coeffs, rss, np.arange(len(obs)), lights, h, y_arr,
+                                None, 0.0, 10, 1e-6)
+        free = float(np.nansum(rss))
     used = np.sum(weights > 0, axis=1)
     expected = float(np.sum(np.maximum(used - 3, 1)) / np.sum(np.maximum(used - 12, 1)))
     ratio = shared / max(free, 1e-300)
@@ -403,6 +442,14 @@ def _base_status(weights, base):
 WIDE_SPREAD_DEG = 45.0
 WIDE_T_LOW = 0.35
 WIDE_T_SHADOW = 0.02
+#: The narrow-cone fallback when the object fails the single-material check: the paper's
+#: darkest-fraction rule with its wide-cone value (one value of the paper's 20-40 % for both).
+#: The rule is worse conditioned under a narrow cone than robust selection with the prior, but
+#: a prior fitted to two materials biases both. Measured (tests/pipeline/test_shape_check.py's
+#: object, 64 lights in a 42-degree cone; mean error, noisy / noise-free): sharp lobes, default
+#: 2.62 / 2.45, t_low 0.25-0.4: 0.44-0.62 / 0.03-0.07; broad lobes, default 5.98 / 5.94, t_low
+#: 0.25-0.4: 1.37-1.59 / 0.89-1.32 degrees. No value of the range wins on all four.
+FALLBACK_T_LOW = WIDE_T_LOW
 
 
 def light_spread_deg(lights):
@@ -423,20 +470,28 @@ def resolve_selection(lights, options):
     normal, and a broad specular lobe, which covers most observations, is left out by
     intensity. Narrow cones (DiLiGenT, about 40 degrees): that rule is ill-conditioned (the
     darkest lights all sit on one side), so robust residual-based rejection and the shared-shape
-    prior are used. Explicit ``t_low``/``shape_prior``/``selection`` options always win.
+    prior are used; if the object fails the single-material check, the prior is dropped and
+    every pixel uses the darkest ``fallback_t_low`` fraction instead (default
+    :data:`FALLBACK_T_LOW`, None for no fallback). Explicit ``t_low``/``shape_prior``/``selection``
+    options always win; an explicit ``selection`` or ``t_low`` also turns the fallback off.
     """
     options = dict(options)
     if options.get("selection", "auto") != "auto" or options.get("t_low") is not None:
         options.setdefault("selection", "robust")
         if options["selection"] == "auto":
             options["selection"] = "robust"
+        options.pop("fallback_t_low", None)   # the caller chose the selection
         return options
     if light_spread_deg(np.asarray(lights, float)) > WIDE_SPREAD_DEG:
         options.update(selection="darkest", t_low=WIDE_T_LOW)
         options.setdefault("shape_prior", 0.0)
         options.setdefault("t_shadow", WIDE_T_SHADOW)
+        options.pop("fallback_t_low", None)
     else:
         options["selection"] = "robust"
+        fraction = options.setdefault("fallback_t_low", FALLBACK_T_LOW)
+        if fraction is not None and not 0 < fraction <= 1:
+            raise InputError(f"fallback_t_low must be in (0, 1] or None, got {fraction}")
     return options
 
 
@@ -479,8 +534,16 @@ def _shading(b, lights):
 class _Biquadratic:
     """The default method; see the module docstring and :func:`biquadratic_method`."""
 
-    def prepare(self, gather, pixels, shape_prior=0.01, sample_pixels=2000, seed=0, **options):
-        """Fit the shared shape on a fixed random subsample of the object's pixels."""
+    def prepare(self, gather, pixels, shape_prior=0.01, sample_pixels=2000, seed=0, fallback_t_low=None,
+                **options):
+        """Fit the shared shape on a fixed random subsample of the object's pixels.
+
+        Returns the context every chunk is solved with (the tiled stage computes it once and
+        hands the same dict to every tile): ``shape`` (3, 3) and ``shape_paper`` (9,) when the
+        prior is used, ``shape_check`` (:func:`single_material_check`), and ``select``, the
+        selection options of the darkest-fraction fallback when the check failed and
+        ``fallback_t_low`` is set (by :func:`resolve_selection`, on the automatic narrow-cone path).
+        """
         if shape_prior is None or shape_prior <= 0 or options.get("shared_shape") is False:
             return {}
         rng = np.random.default_rng(seed)
@@ -501,15 +564,22 @@ class _Biquadratic:
         check = single_material_check(obs[good], weights[good], b[good], b_shared, shape, sel(lights), sel(h),
                                       sel(y))
         if not check["one_material"]:
-            return {"shape_check": check}
+            if not fallback_t_low:
+                return {"shape_check": check}
+            return {"shape_check": dict(check, fallback=f"darkest t_low {fallback_t_low:g}"),
+                    "select": {"selection": "darkest", "t_low": float(fallback_t_low)}}
         return {"shape": shape, "shape_paper": to_paper_order(shape), "shape_check": check}
 
     def __call__(self, obs, valid, lights, context=None, shape_prior=0.01, max_iter=10, tol=1e-6,
-                 min_model_obs=12, **options):
-        base, weights, b = _select(obs, valid, lights, **options)
+                 min_model_obs=12, fallback_t_low=None, **options):
+        switch = _known(context).get("select")
+        base, weights, b = _select(obs, valid, lights, **{**options, **(switch or {})})
+        prior = (context or {}).get("shape")   # may wait for the shared shape: select first
+        if switch is None and (context or {}).get("select"):
+            # the context was not ready when this chunk selected, and the check failed
+            base, weights, b = _select(obs, valid, lights, **{**options, **context.get("select")})
         status, used = _base_status(weights, base)
         h, y = half_vectors(lights)
-        prior = (context or {}).get("shape")   # may wait for the shared shape: select first
         coeffs = np.zeros((len(obs), 3, 3))
         coeffs[:, 0, 0] = 1.0
         rss = np.sum(weights * (obs - _shading(b, lights)) ** 2, axis=1)
@@ -575,6 +645,11 @@ def biquadratic_method(obs, valid, lights, **options):
     shape_prior : float
         Strength of the pull toward the object's shared shape (default 0.01; 0 = the paper's
         independent per-pixel fit).
+    fallback_t_low : float, optional
+        Set by :func:`resolve_selection` on the automatic narrow-cone path (default
+        :data:`FALLBACK_T_LOW`; None turns the fallback off): when the object fails the
+        single-material check, every pixel keeps its darkest ``fallback_t_low`` fraction and is
+        fitted without the prior.
     max_iter, tol
         Alternation limit (10) and convergence threshold: relative change of the pixel's
         residual (1e-6; the paper stops at an absolute change of 1e-7).
