@@ -76,3 +76,19 @@ def row_angles_deg(a, b):
     a = a / np.linalg.norm(a, axis=1, keepdims=True)
     b = b / np.linalg.norm(b, axis=1, keepdims=True)
     return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=1), -1, 1)))
+
+
+def import_stack(folder, name, images, mask, lights):
+    """A session ``folder/name`` imported from grey ``images`` (K, H, W) in 0..1 written as
+    16-bit RGB PNGs, with the object ``mask`` and the light directions ``lights`` (K, 3)."""
+    from pipeline.imageio import write_image, write_mask
+    from pipeline.importers import import_images
+
+    src = folder / f"{name}_src"
+    src.mkdir(parents=True)
+    for k, image in enumerate(images):
+        write_image(src / f"img{k + 1:02d}.png", np.repeat(image[..., None], 3, axis=2))
+    (src / "lights.txt").write_text("".join(f"{x} {y} {z}\n" for x, y, z in lights))
+    write_mask(src / "mask.png", mask)
+    return import_images(folder / name, str(src / "img*.png"), mask=src / "mask.png",
+                         lights=src / "lights.txt").root

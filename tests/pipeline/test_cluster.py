@@ -262,20 +262,13 @@ def make_miscalibrated_session(folder, name, size=80):
     """Sharp highlights under a narrow cone whose given lights are 5 % too narrow in polar angle:
     the serial stage corrects the lights from the specular peaks (pipeline.ps_anchor)."""
     from pipeline.ps_anchor import scale_cone
-    from ps_synthetic import cook_torrance_images, hemisphere_lights, sphere_normals
+    from ps_synthetic import cook_torrance_images, hemisphere_lights, import_stack, sphere_normals
 
     lights = hemisphere_lights(96, seed=1, min_elevation_deg=48)
     normals, mask = sphere_normals(size)
     images = cook_torrance_images(normals, mask, scale_cone(lights, 1.05), roughness=0.05, ks=0.5, noise=0.002)
     images = images / (1.05 * images.max())  # no clipping in the 16-bit PNGs
-    src = folder / f"{name}_src"
-    src.mkdir(parents=True)
-    for k, image in enumerate(images):
-        write_image(src / f"img{k + 1:02d}.png", np.repeat(image[..., None], 3, axis=2))
-    (src / "lights.txt").write_text("".join(f"{x} {y} {z}\n" for x, y, z in lights))
-    write_mask(src / "mask.png", mask)
-    return import_images(folder / name, str(src / "img*.png"), mask=src / "mask.png",
-                         lights=src / "lights.txt").root
+    return import_stack(folder, name, images, mask, lights)
 
 
 def test_tiles_hand_a_session_whose_lights_need_correcting_to_the_serial_stage(tmp_path):

@@ -142,19 +142,11 @@ def test_chunks_solved_with_a_shared_context_match_whatever_its_timing():
 
 def two_material_session(folder, name):
     """The object of :func:`two_materials` imported as 16-bit PNGs with its light file and mask."""
-    from pipeline.imageio import write_image, write_mask
-    from pipeline.importers import import_images
+    from ps_synthetic import import_stack
 
     images, _, mask = two_materials()
     images = np.clip(images / (1.05 * images.max()), 0, 1) * mask
-    src = folder / f"{name}_src"
-    src.mkdir(parents=True)
-    for k, image in enumerate(images):
-        write_image(src / f"img{k + 1:02d}.png", np.repeat(image[..., None], 3, axis=2))
-    (src / "lights.txt").write_text("".join(f"{x} {y} {z}\n" for x, y, z in NARROW))
-    write_mask(src / "mask.png", mask)
-    return import_images(folder / name, str(src / "img*.png"), mask=src / "mask.png",
-                         lights=src / "lights.txt").root
+    return import_stack(folder, name, images, mask, NARROW)
 
 
 def test_tiled_stage_falls_back_as_the_serial_stage(tmp_path):
