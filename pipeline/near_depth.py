@@ -22,6 +22,7 @@ mean, so separate objects at different heights share it); orthographic relief (a
 import cv2
 import numpy as np
 
+from .golden import golden_section, golden_steps
 from .integrate import integrate_normals
 from .near_lights import PointLights
 from .photometric import STATUS
@@ -36,7 +37,6 @@ RELIEF_PIXELS = 250_000
 _UNSOLVED = (STATUS["background"], STATUS["too_few"])
 #: offsets scanned over +-half the median light distance before the golden-section search
 SCAN_STEPS = 9
-_GOLDEN = (np.sqrt(5) - 1) / 2
 
 
 def refine_near_depth(solve, lights, mask, *, passes=1, sample_pixels=SAMPLE_PIXELS, seed=0, tol=0.5):
@@ -143,18 +143,6 @@ def _best_offset(solve, lights, relief, sample, tol):
 
     reach = 0.5 * float(np.median(np.linalg.norm(lights.positions, axis=1)))
     grid = np.linspace(-reach, reach, SCAN_STEPS)
-    scores = [score(o) for o in grid]
-    best = int(np.argmin(scores))
+    best = int(np.argmin([score(o) for o in grid]))
     lo, hi = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
-    a, b = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
-    fa, fb = score(a), score(b)
-    while hi - lo > tol:
-        if fa < fb:
-            hi, b, fb = b, a, fa
-            a = hi - _GOLDEN * (hi - lo)
-            fa = score(a)
-        else:
-            lo, a, fa = a, b, fb
-            b = lo + _GOLDEN * (hi - lo)
-            fb = score(b)
-    return 0.5 * (lo + hi)
+    return float(golden_section(score, lo, hi, golden_steps(hi - lo, tol)))

@@ -10,6 +10,7 @@ global in m, which a local Levenberg-Marquardt from a Lambertian start is not.
 
 import numpy as np
 
+from ..golden import golden_section
 from .base import Geometry, ReflectanceModel, register_model
 
 __all__ = ["LambertSpecular", "CookTorrance", "ROUGHNESS_RANGE"]
@@ -18,7 +19,6 @@ __all__ = ["LambertSpecular", "CookTorrance", "ROUGHNESS_RANGE"]
 ROUGHNESS_RANGE = (0.01, 1.0)
 #: Cosines in denominators are clipped here so that grazing geometry stays finite.
 _COS_MIN = 1e-3
-_GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 
 
 class LambertSpecular(ReflectanceModel):
@@ -71,7 +71,7 @@ class LambertSpecular(ReflectanceModel):
         hi = np.log(np.where(best + 1 < grid.size, grid[np.minimum(best + 1, grid.size - 1)],
                              ROUGHNESS_RANGE[1]))
         lo = np.where(best == 0, np.log(ROUGHNESS_RANGE[0]), lo)
-        m = np.exp(_golden_search(lambda t: profile(np.exp(t))[2], lo, hi, self.refine_steps))
+        m = np.exp(golden_section(lambda t: profile(np.exp(t))[2], lo, hi, self.refine_steps))
         kd, ks, _ = profile(m)
         return np.stack([kd, ks, m], axis=-1)
 
@@ -121,22 +121,6 @@ def _nonneg_pair(sums, a, b, v, w):
     with np.errstate(over="ignore", invalid="ignore"):
         res = vv - 2 * (kd * av + ks * bv) + kd * kd * aa + 2 * kd * ks * ab + ks * ks * bb
     return kd, ks, np.where(np.isfinite(res), res, np.inf)
-
-
-def _golden_search(func, lo, hi, steps):
-    """Batched golden-section minimisation of func over [lo, hi] (arrays); returns the argmin."""
-    c = hi - _GOLDEN * (hi - lo)
-    d = lo + _GOLDEN * (hi - lo)
-    fc, fd = func(c), func(d)
-    for _ in range(steps):
-        left = fc <= fd
-        hi = np.where(left, d, hi)
-        lo = np.where(left, lo, c)
-        new = np.where(left, hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo))
-        fnew = func(new)
-        c, d = np.where(left, new, d), np.where(left, c, new)
-        fc, fd = np.where(left, fnew, fd), np.where(left, fc, fnew)
-    return np.where(fc <= fd, c, d)
 
 
 @register_model
