@@ -187,7 +187,7 @@ def _check_outline_matches(circ, image):
         seen = refine_circle(image, circ)
     except SphereNotFound:
         return
-    if not credible(seen, image.shape, 0.4, None):
+    if not credible(seen, image.shape):   # the bar find_spheres sets by default
         return
     shift = max(np.hypot(seen.cx - circ.cx, seen.cy - circ.cy), abs(seen.r - circ.r))
     if shift > max(OUTLINE_SHIFT * circ.r, OUTLINE_SHIFT_PX):

@@ -318,7 +318,8 @@ class SimulatedRig:
         if self.scene == "outline":
             scene = self.scenes["sphere"]
             linear = scene.render_room() * np.float32(gain)
-            return scene.dng_from_mosaic(scene.mosaic_from_linear(linear, key=(0, 2, int(shot))))  # 2: not a dark (0) or lit (1) key
+            # noise key (light, ambient flag, shot) as below; ambient 2 keeps it apart from theirs
+            return scene.dng_from_mosaic(scene.mosaic_from_linear(linear, key=(0, 2, int(shot))))
         scene, ambient = self.scenes["object" if self.scene == "dark" else self.scene], True
         if self.scene == "dark":
             light, ambient = None, False
