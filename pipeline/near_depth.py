@@ -104,8 +104,10 @@ def _relief(result, mask, max_pixels=RELIEF_PIXELS):
     if f > 1:
         normals, solved_small = _block_mean(normals, f), _block_mean(solved.astype(float), f) > 0.5
         height = integrate_normals(normals, solved_small) * f
-        height = cv2.resize(np.nan_to_num(height - np.nanmean(height), nan=0.0), mask.shape[::-1],
-                            interpolation=cv2.INTER_LINEAR)
+        # back to the padded size of the blocks, then cropped: block i covers pixels i*f..i*f+f-1
+        blocks = np.nan_to_num(height - np.nanmean(height), nan=0.0)
+        height = cv2.resize(blocks, (blocks.shape[1] * f, blocks.shape[0] * f),
+                            interpolation=cv2.INTER_LINEAR)[:mask.shape[0], :mask.shape[1]]
     else:
         height = integrate_normals(normals, solved)
     return np.nan_to_num(height - np.nanmean(height[solved]), nan=0.0)
