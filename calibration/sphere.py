@@ -117,6 +117,14 @@ def _grey(images):
     raise InputError(f"sphere images must be (K, H, W) or (K, H, W, C), got shape {images.shape}")
 
 
+def _edge_grey(frames, shape):
+    """Grey (K, H, W) of ``edge_frames``, checked against the frames' ``shape``."""
+    grey = _grey(frames)[0]
+    if grey.shape != shape:
+        raise InputError(f"edge frames: shape {grey.shape} does not match the frames {shape}")
+    return grey
+
+
 def _given(circle):
     """A circle or a list of circles -> list of Circle."""
     single = isinstance(circle, Circle) or np.ndim(circle) == 1
@@ -160,8 +168,8 @@ def _outline_grey(outline, shape):
 #: Largest shift between a sphere's circle on the outline photo and on the light frames before
 #: they are taken to show different scenes: this fraction of the radius, and at least
 #: OUTLINE_SHIFT_PX. The limb of a chrome ball mirrors what lies behind it, so its apparent edge
-#: moves with the lighting: PSBox's room-lit photos and light frames differ by 2-3 px on 420 px
-#: spheres (0.7 %), a dark limb crescent by its width. A knocked camera or sphere moves it further.
+#: moves with the lighting: PSBox's room-lit photos and light frames differ by 1-2 px on 420 px
+#: spheres (0.4 %), a dark limb crescent by its width. A knocked camera or sphere moves it further.
 OUTLINE_SHIFT, OUTLINE_SHIFT_PX = 0.02, 3.0
 
 
@@ -171,23 +179,22 @@ def _outline_circles(outline, grey, spheres):
         found = find_spheres(_outline_grey(outline, grey.shape[1:]), spheres)
     except SphereNotFound as exc:
         raise SphereNotFound(f"outline photo: {exc}") from None
-    image = sphere_image(grey)
     for circ in found:
-        _check_outline_matches(circ, image)
+        _check_outline_matches(circ, grey)
     return [replace(c, method="outline") for c in found]
 
 
-def _check_outline_matches(circ, image):
+def _check_outline_matches(circ, grey):
     """Raise InputError when the light frames show this sphere clearly elsewhere.
 
     Frames whose outline is too faint to fit (a dark room, a black background) cannot be
     compared and pass: the photo is then the only outline there is.
     """
     try:
-        seen = refine_circle(image, circ)
+        seen = refine_circle(grey, circ)
     except SphereNotFound:
         return
-    if not credible(seen, image.shape):   # the bar find_spheres sets by default
+    if not credible(seen, grey.shape[1:]):   # the bar find_spheres sets by default
         return
     shift = max(np.hypot(seen.cx - circ.cx, seen.cy - circ.cy), abs(seen.r - circ.r))
     if shift > max(OUTLINE_SHIFT * circ.r, OUTLINE_SHIFT_PX):
@@ -208,7 +215,16 @@ def _circles(grey, circle, mask, spheres, outline=None):
         return [(c, None) for c in _given(circle)]
     if mask is not None:
         return [(circle_from_mask(r), r) for r in _mask_regions(mask, grey.shape[1:])]
-    return [(c, None) for c in find_spheres(sphere_image(grey), spheres)]
+    return [(_on_frames(grey, c), None) for c in find_spheres(sphere_image(grey), spheres)]
+
+
+def _on_frames(grey, circ):
+    """``circ``, found on the frames' maximum, refined on the frames (K, H, W) themselves."""
+    try:
+        seen = refine_circle(grey, circ)
+    except SphereNotFound:
+        return circ
+    return seen if credible(seen, grey.shape[1:]) else circ
 
 
 def _one_sphere(grey, peak, sat, circ, mask, K):
@@ -257,7 +273,8 @@ def _uncertainty(blob, circ, K, direction):
     return float(np.sqrt(np.nansum(np.square(angles))))
 
 
-def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None, spheres=None, outline=None):
+def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None, spheres=None, outline=None,
+                     edge_frames=None):
     """Light directions (and positions with two chrome spheres) from sphere frames.
 
     Parameters
@@ -283,6 +300,10 @@ def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None,
         light frames a dark rim or the stand can pull the outline off by pixels. The chrome or
         matte kind of each sphere is still decided on the frames. None (default) finds the
         circles on the frames. Not together with ``circle`` or ``mask``.
+    edge_frames : ndarray (K, H, W) or (K, H, W, C) or None
+        The same frames on the scale to find the sphere outlines on, when that is not the
+        scale of ``images``: for 8-bit photos decoded to linear, their display-encoded values,
+        on which the camera sharpened the edges. None (default): ``images``.
 
     Returns
     -------
@@ -307,7 +328,8 @@ def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None,
         sat = np.asarray(saturation, bool)
         if sat.shape != grey.shape:
             raise InputError(f"saturation masks: shape {sat.shape} does not match the frames {grey.shape}")
-    found = _circles(grey, circle, mask, spheres, outline)
+    found = _circles(grey if edge_frames is None else _edge_grey(edge_frames, grey.shape), circle, mask,
+                     spheres, outline)
     kinds, chrome, targets = [], [], []
     for circ, region in found:
         kind, share = sphere_kind(grey, circ.params)

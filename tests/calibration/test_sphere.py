@@ -73,10 +73,14 @@ def test_triangulate_and_per_pixel_directions():
 
 @pytest.mark.skipif(not DATA.is_dir(), reason="psbox data missing")
 @pytest.mark.slow
-def test_psbox_probe_close_to_published():
+def test_psbox_probes_meet_the_target_from_the_light_frames_alone():
     import cv2
-    d = DATA / "LightProbe-1"
-    frames = np.stack([cv2.imread(str(d / f"Image_{i:02d}.JPG"))[:, :, ::-1] for i in range(1, 13)])
-    result = calibrate_sphere(frames.astype(np.float32) / 255)
-    err = _angles(result.directions, np.loadtxt(d / "light_directions.txt").T)
-    assert np.median(err) < 1.0
+    found = {}
+    for probe in ("LightProbe-1", "LightProbe-2"):
+        d = DATA / probe
+        frames = np.stack([cv2.imread(str(d / f"Image_{i:02d}.JPG"))[:, :, ::-1] for i in range(1, 13)])
+        found[probe] = calibrate_sphere(frames.astype(np.float32) / 255).directions
+        err = _angles(found[probe], np.loadtxt(d / "light_directions.txt").T)
+        assert np.median(err) <= 0.5, (probe, np.median(err))   # issue 5: 0.417 and 0.345 measured
+    # the published files disagree by 0.878 deg median; 0.894 measured
+    assert np.median(_angles(found["LightProbe-1"], found["LightProbe-2"])) < 1.0
