@@ -225,7 +225,11 @@ def _window(frames, c):
 
 
 def _smooth(frames):
-    return np.stack([ndimage.gaussian_filter(f, 1.0) for f in frames])
+    """Frames (K, h, w) blurred by a 1 px Gaussian (OpenCV's, several times faster than scipy's)."""
+    out = np.empty(frames.shape, np.float32)
+    for f, o in zip(frames, out):
+        cv2.GaussianBlur(np.ascontiguousarray(f), (9, 9), 1.0, dst=o, borderType=cv2.BORDER_REFLECT)
+    return out
 
 
 def _sharpest_edges(smooth, c, band):
