@@ -189,7 +189,7 @@ def _check_normals(normals, mask, K, invalid):
             text = f"{int(bad.sum())} masked pixel(s) {what}, first at row {row}, column {col}"
             if invalid == "raise":
                 raise InputError(f"normals: {text}; fix the normals, leave those pixels out of "
-                                 "the mask, or pass invalid='drop'")
+                                 "the mask, or drop them (--drop-invalid; invalid='drop' in the API)")
             warnings.append(f"dropped from the mask: {text}")
             mask = mask & ~bad
     if not mask.any():

@@ -90,7 +90,7 @@ def write_depth_outputs(folder, result, normals, K=None, info=None):
     return summary
 
 
-def integrate_session(session, *, K=None, method="smooth", force=False, **options):
+def integrate_session(session, *, K=None, method="smooth", force=False, invalid="drop", **options):
     """Run the integrate stage of a session unless it is up to date.
 
     Parameters
@@ -102,6 +102,11 @@ def integrate_session(session, *, K=None, method="smooth", force=False, **option
         A name in :data:`pipeline.integrate.METHODS`.
     force : bool
         Run even when the stage record matches.
+    invalid : {'drop', 'raise'}
+        What to do with masked pixels whose normal is unusable (none, or facing away from the
+        camera: photometric stereo gives such pixels in deep shadow or on the background of
+        an automatic mask). 'drop' (default) leaves them out and lists them in the result's
+        and the stage record's ``warnings``; 'raise' refuses them.
     options
         Passed to the method.
 
@@ -114,7 +119,8 @@ def integrate_session(session, *, K=None, method="smooth", force=False, **option
         if not session.path(rel).is_file():
             raise StageError(f"{session.path(rel)}: missing; run `psrig normals` first")
     K = None if K is None else check_intrinsics(K)
-    params = {"method": method, "K": None if K is None else K.tolist(), "options": dict(options)}
+    options = dict(options, invalid=invalid)
+    params = {"method": method, "K": None if K is None else K.tolist(), "options": options}
     inputs = session.hash_inputs([NORMALS, MASK])
     if not force and session.stage_is_current("integrate", params, inputs):
         return None

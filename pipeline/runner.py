@@ -30,7 +30,8 @@ LIGHTS = "calibration/lights.yaml"
 
 @dataclass
 class StageOutcome:
-    """What one stage did: ``ran`` (bool), ``seconds`` wall time, ``note`` (why skipped)."""
+    """What one stage did: ``ran`` (bool), ``seconds`` wall time, ``note`` (why it was skipped,
+    or what a user should know of a run)."""
 
     name: str
     ran: bool
@@ -39,7 +40,7 @@ class StageOutcome:
 
     def describe(self):
         if self.ran:
-            return f"{self.name}: ran in {self.seconds:.1f} s"
+            return f"{self.name}: ran in {self.seconds:.1f} s" + (f"; {self.note}" if self.note else "")
         return f"{self.name}: up to date" + (f" ({self.note})" if self.note else "")
 
 
@@ -99,7 +100,8 @@ def _normals(session, options, force, jobs):
 def _integrate(session, options, force, jobs):
     from .integrate_stage import integrate_session
 
-    integrate_session(session, force=force, **options)
+    result = integrate_session(session, force=force, **options)
+    return "; ".join(result.warnings) if result is not None else None
 
 
 def _report(session, options, force, jobs):

@@ -32,8 +32,9 @@ def register(subparsers):
     parser.add_argument("--k", type=float, default=None,
                         help="bilateral sharpness (larger keeps more discontinuities)")
     parser.add_argument("--drop-invalid", action="store_true",
-                        help="leave pixels with unusable normals (non-finite, facing away) out of "
-                             "the mask instead of refusing them")
+                        help="with --normals: leave pixels with unusable normals (non-finite, facing "
+                             "away) out of the mask instead of refusing them (a session's own "
+                             "normals always are, with a note)")
     parser.add_argument("--force", action="store_true", help="rerun even if up to date")
     parser.set_defaults(func=run)
 

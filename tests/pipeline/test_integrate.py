@@ -11,6 +11,7 @@ from pipeline.errors import InputError, StageError
 from pipeline.imageio import read_image, read_mask, read_normal_png, write_image, write_mask, write_normal_png
 from pipeline.integrate import METHODS, integrate_normals, integrate_normals_full
 from pipeline.integrate_stage import integrate_session, read_intrinsics
+from pipeline.runner import RUNNERS, StageOutcome
 from pipeline.session import Session
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "depth_gt" / "cat"
@@ -362,6 +363,29 @@ def test_stage_reports_components_and_missing_inputs(tmp_path):
     empty = Session.create(tmp_path / "e")
     with pytest.raises(StageError, match="normals.exr"):
         integrate_session(empty)
+
+
+def test_stage_leaves_out_pixels_photometric_stereo_could_not_solve(tmp_path):
+    # a session's own normals: a shadowed pixel (no estimate, zero normal) and one facing away
+    # (an automatic mask's background) must not stop `psrig run` at its last stages
+    mask = disc_mask((30, 40), (15, 20), 12)
+    session = make_session(tmp_path / "s", mask)
+    normals = read_image(session.path("normals/normals.exr"))
+    normals[15, 20] = 0.0
+    normals[10, 18] = (0.1, 0.0, -0.99)
+    write_image(session.path("normals/normals.exr"), normals)
+    note = RUNNERS["integrate"](session, {}, False, None)   # what `psrig run` calls
+    depth = read_image(session.path("depth/depth.exr"))[:, :, 0]
+    assert np.isnan(depth[15, 20]) and np.isnan(depth[10, 18])
+    assert np.isfinite(depth).sum() == mask.sum() - 2
+    warnings = Session.open(session.root).stage("integrate")["warnings"]
+    assert len(warnings) == 2 and "row 10, column 18" in warnings[1]
+    line = StageOutcome("integrate", True, 0.1, note).describe()
+    assert line.startswith("integrate: ran in 0.1 s; dropped from the mask: 1 masked pixel(s) have non-finite")
+    assert "face away from the camera" in line
+    # asked to refuse them, the stage names the file and the pixel
+    with pytest.raises(InputError, match=r"normals\.exr: normals: 1 masked pixel\(s\) have non-finite"):
+        integrate_session(session, invalid="raise")
 
 
 def test_cli_normal_map_from_anywhere(tmp_path, capsys):
