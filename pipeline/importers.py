@@ -49,11 +49,20 @@ def expand_glob(pattern, what="--object"):
     return files
 
 
-def check_sizes(files, size=None, reference=None):
+#: what to do with sphere photos cropped apart from the object's (PSBox ships them so)
+SPHERE_CROP_HINT = ("; sphere photos cropped apart from the object's can be calibrated in a session of their "
+                    "own (psrig import images CAL --object SPHERES --sphere SPHERES, then psrig decode CAL "
+                    "and psrig calibrate CAL) and the light directions given to this one with "
+                    "--lights CAL/calibration/lights.lp (directions only: positions found on another "
+                    "crop would sit in its pixels, not these)")
+
+
+def check_sizes(files, size=None, reference=None, hint=""):
     """Common (height, width) of image files; InputError naming the first odd file.
 
     ``size`` is the size already established by ``reference`` (a file of another group, e.g.
     the first object frame when checking sphere frames); by default the first of ``files``.
+    ``hint`` ends the error message.
     """
     reference = files[0] if reference is None else reference
     for path in files:
@@ -62,7 +71,7 @@ def check_sizes(files, size=None, reference=None):
             size = (height, width)
         elif (height, width) != tuple(size):
             raise InputError(f"{path}: image is {width}x{height} but {reference} is "
-                             f"{size[1]}x{size[0]}; all frames must have the same size")
+                             f"{size[1]}x{size[0]}; all frames must have the same size{hint}")
     return tuple(size)
 
 
@@ -176,7 +185,7 @@ def import_images(dest, object_glob, *, sphere_glob=None, mask=None, lights=None
     spheres = []
     if sphere_glob:
         spheres = expand_glob(sphere_glob, "--sphere")
-        check_sizes(spheres, size, reference=objects[0])
+        check_sizes(spheres, size, reference=objects[0], hint=SPHERE_CROP_HINT)
         if len(spheres) != len(objects):
             raise InputError(f"--sphere {sphere_glob!r}: {len(spheres)} sphere frames for "
                              f"{len(objects)} object frames; one per light is needed")

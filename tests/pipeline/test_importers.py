@@ -86,8 +86,10 @@ def test_import_images_errors_leave_nothing(tmp_path, capsys):
     dest = tmp_path / "s"
     with pytest.raises(InputError, match=r"a4\.png: image is 16x10"):
         import_images(dest, str(tmp_path / "obj" / "a*.png"))
-    # a sphere frame of another size names the object frame it is compared with
-    with pytest.raises(InputError, match=r"a4\.png: image is 16x10 but .*a1\.png is"):
+    # a sphere frame of another size names the object frame it is compared with, and says
+    # how to calibrate sphere photos cropped apart from the object's
+    with pytest.raises(InputError, match=r"a4\.png: image is 16x10 but .*a1\.png is .*session of their own.*"
+                                         r"--lights CAL/calibration/lights\.lp"):
         import_images(dest, str(tmp_path / "obj" / "a[123].png"), sphere_glob=str(tmp_path / "obj" / "a4.png"))
     with pytest.raises(InputError, match=r"--object .*nothing\*\.png.*no files match"):
         import_images(dest, str(tmp_path / "nothing*.png"))
