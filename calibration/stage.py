@@ -151,8 +151,9 @@ def _mean_outline(session, frames):
 def _edge_frames(session, frames, images):
     """Grey (K, H, W) of 8-bit sphere frames on their display-encoded values, else None.
 
-    For the same reason as the outline photo's: PSBox probe 1's circle found on the encoded
-    light frames gives directions 0.42 deg (median) from the author's, on the linear ones 0.63.
+    For the same reason as the outline photo's: through this stage, PSBox probe 1's circle
+    found on the encoded light frames gives directions 0.46 deg (median) from the author's, on
+    the linear ones 0.64.
     """
     gammas = [_gamma(session, f) for f in frames]
     if any(g is None for g in gammas):
