@@ -8,6 +8,7 @@ object below: 2.62 -> 0.47 degrees mean (robust selection without the prior befo
 noise-free."""
 
 import functools
+import time
 from concurrent.futures import Future
 from pathlib import Path
 
@@ -138,6 +139,31 @@ def test_chunks_solved_with_a_shared_context_match_whatever_its_timing():
         b = solver(obs, None, NARROW, context=shared, **options)["b"]
         normals = b / np.linalg.norm(b, axis=1, keepdims=True)
         np.testing.assert_allclose(normals, result.normals[mask], atol=1e-6)
+
+
+@pytest.mark.parametrize("material", [one_material, two_materials])
+def test_chunks_selected_ahead_of_a_slow_context_give_the_serial_result(material, monkeypatch):
+    images, _, mask = material()
+    serial = estimate_normals(images, NARROW, mask, specular_anchor=False, workers=1, chunk_size=256)
+    solver = type(METHODS["biquadratic"])
+    prepare, select = solver.prepare, solver.select
+    early = []
+
+    def slow_prepare(self, *args, **kwargs):
+        time.sleep(0.3)   # the other worker selects chunks meanwhile
+        return prepare(self, *args, **kwargs)
+
+    def spied_select(self, *args, context=None, **kwargs):
+        early.append(not context.ready())
+        return select(self, *args, context=context, **kwargs)
+
+    monkeypatch.setattr(solver, "prepare", slow_prepare)
+    monkeypatch.setattr(solver, "select", spied_select)
+    ahead = estimate_normals(images, NARROW, mask, specular_anchor=False, workers=2, chunk_size=256)
+    assert sum(early) >= 3, early   # several chunks were selected before the context was ready
+    np.testing.assert_array_equal(ahead.normals, serial.normals)
+    np.testing.assert_array_equal(ahead.status, serial.status)
+    assert ahead.options.get("selection") == serial.options.get("selection")
 
 
 def two_material_session(folder, name):
