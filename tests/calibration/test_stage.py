@@ -1,11 +1,13 @@
 """The calibrate stage on 8-bit sphere frames: circles found on the values the camera wrote."""
 
 import numpy as np
+import pytest
 import yaml
 
 from calibration.sphere import calibrate_sphere
 from pipeline.cli import main
 from pipeline.decode_image import encode_gamma
+from pipeline.errors import InputError
 from pipeline.imageio import read_image, write_image
 from pipeline.session import Session
 from tests.calibration.sim_session import linear_frames, sphere_scene
@@ -36,3 +38,9 @@ def test_8_bit_sphere_frames_are_searched_on_their_encoded_values(tmp_path):
     linear = np.stack([read_image(session.linear_path(f))
                        for f in sorted(session.frames("sphere"), key=lambda f: f["light"])])
     assert np.abs(_circles(calibrate_sphere(linear).kinds) - on_codes).max() > 0.02
+
+
+def test_edge_frames_of_another_shape_are_refused():
+    images, _ = linear_frames(sphere_scene(6))
+    with pytest.raises(InputError, match=r"edge frames: shape \(5, "):
+        calibrate_sphere(images, edge_frames=images[:5])
