@@ -85,3 +85,18 @@ def test_streak_clipped_in_one_channel_is_not_taken_for_the_clipped_core():
     assert _angles(reference.directions, truth).max() < 0.1
     shift = _angles(result.directions[0], reference.directions[0])
     assert shift < 0.6, f"a blue-clipped streak moved light 0 by {shift:.3f} deg"
+
+
+def test_a_small_brighter_spot_does_not_take_the_highlights_place():
+    # PSBox probe 1 at half size: a lamp mirrored near the rim (23 px) peaked a hair above the
+    # clipped highlight (600 px) of frame 3; taken as the highlight it gave a direction 90 deg
+    # off, flagged only as 'two highlights'
+    truth = _lights()
+    clean = render_chrome(truth, sigma_deg=8.0, gain=0.9)   # broad unclipped lobes peaking near 0.9
+    frames = clean.copy()
+    x, y = _spot([0.8, -0.3, 0.52])                          # far from light 0's highlight
+    frames[0, int(y) - 1:int(y) + 2, int(x) - 1:int(x) + 2] += 0.95
+    reference = calibrate_sphere(clean, circle=CIRCLE, saturation=np.zeros(clean.shape, bool))
+    result = calibrate_sphere(frames, circle=CIRCLE, saturation=np.zeros(clean.shape, bool))
+    assert 0 not in result.flags, result.flags
+    assert _angles(result.directions[0], reference.directions[0]) < 0.05
