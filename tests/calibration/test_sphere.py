@@ -73,14 +73,20 @@ def test_triangulate_and_per_pixel_directions():
 
 @pytest.mark.skipif(not DATA.is_dir(), reason="psbox data missing")
 @pytest.mark.slow
-def test_psbox_probes_meet_the_target_from_the_light_frames_alone():
+@pytest.mark.parametrize("scale", [1.0, 0.5])
+def test_psbox_probes_meet_the_target_from_the_light_frames_alone(scale):
+    # half size too: the defaults must not hang on the probes' 420 px radius
     import cv2
     found = {}
     for probe in ("LightProbe-1", "LightProbe-2"):
         d = DATA / probe
-        frames = np.stack([cv2.imread(str(d / f"Image_{i:02d}.JPG"))[:, :, ::-1] for i in range(1, 13)])
+        frames = [cv2.imread(str(d / f"Image_{i:02d}.JPG")) for i in range(1, 13)]
+        if scale != 1.0:
+            frames = [cv2.resize(f, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) for f in frames]
+        frames = np.stack(frames)[..., ::-1]
         found[probe] = calibrate_sphere(frames.astype(np.float32) / 255).directions
         err = _angles(found[probe], np.loadtxt(d / "light_directions.txt").T)
-        assert np.median(err) <= 0.5, (probe, np.median(err))   # issue 5: 0.417 and 0.345 measured
-    # the published files disagree by 0.878 deg median; 0.898 measured
+        # issue 5; measured 0.417 and 0.345 (half size: 0.438 and 0.281)
+        assert np.median(err) <= 0.5 and err.max() < 1.0, (probe, np.median(err), err.max())
+    # the published files disagree by 0.878 deg median; 0.898 measured (half size: 0.849)
     assert np.median(_angles(found["LightProbe-1"], found["LightProbe-2"])) < 1.0
