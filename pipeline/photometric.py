@@ -279,7 +279,8 @@ def _run(solver, images, lights, near, mask, valid, chunk_size, workers, progres
     out = {}
     mismatch = []
     lock = threading.Lock()
-    chunks = iter([pixels[i:i + chunk_size] for i in range(0, len(pixels), chunk_size)])
+    pieces = [pixels[i:i + chunk_size] for i in range(0, len(pixels), chunk_size)]
+    chunks = iter(pieces)
     phases = solver if hasattr(solver, "select") else _OnePhase(solver)
 
     def finish(idx, picked):
@@ -313,9 +314,8 @@ def _run(solver, images, lights, near, mask, valid, chunk_size, workers, progres
         for item in held:
             finish(*item)
 
-    n_chunks = -(-len(pixels) // chunk_size)
     # numpy releases the GIL in its array loops, so chunks overlap on several cores.
-    n_workers = max(1, min(workers or os.cpu_count() or 1, n_chunks))
+    n_workers = max(1, min(workers or os.cpu_count() or 1, len(pieces)))
     # One BLAS thread per worker, even with one worker: the products here are thin
     # ((N, K) @ (K, <= 9)), so BLAS threads only spin, which measured several times slower
     # (and worse still on a busy machine), besides oversubscribing the cores.
