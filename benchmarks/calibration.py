@@ -16,14 +16,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from calibration.intensities import target_intensities  # noqa: E402
-from calibration.positions import frame_offset  # noqa: E402
-from calibration.sphere import calibrate_sphere  # noqa: E402
-from calibration.stage import calibrate_session  # noqa: E402
-from pipeline.decode import decode_session  # noqa: E402
-from pipeline.importers import import_images  # noqa: E402
-from tests.calibration.sim_session import linear_frames, sphere_scene  # noqa: E402
+from calibration.intensities import target_intensities
+from calibration.positions import frame_offset
+from calibration.sphere import calibrate_sphere
+from calibration.stage import calibrate_session
+from pipeline.decode import decode_session
+from pipeline.importers import import_images
+from rig.sim.scene import Scene
 
 
 def angles(a, b):
@@ -75,8 +74,9 @@ def _session_route(folder):
 
 def simulated(count=32):
     for distance in (None, 600.0, 1500.0):
-        scene = sphere_scene(count, distance=distance, shape=(360, 480))
-        images, sat = linear_frames(scene)
+        scene = Scene.default_spheres((360, 480), count=count, distance=distance, seed=0)
+        linear = np.stack([scene.render_linear(k) for k in range(scene.count)])
+        images, sat = np.clip(linear, 0, 1), (linear >= 1).any(-1)
         start = time.perf_counter()
         result = calibrate_sphere(images, saturation=sat)
         intens = target_intensities(images, result.directions, circle=result.targets[0].params, saturation=sat,

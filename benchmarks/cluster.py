@@ -21,17 +21,16 @@ import logging
 import os
 import resource
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.cluster_tiles import SCRATCH, TilePlan, _prepare, pixel_tiles, run_tile, serial_chunk_size  # noqa: E402
-from pipeline.photometric import resolve_selection  # noqa: E402
+from pipeline.photometric import SCRATCH, TilePlan, plan_solve, run_tile
+from pipeline.photometric.engine import CHUNK_SIZE
+from pipeline.photometric.tiles import pixel_tiles, tile_context
 
 BLOCK_ROWS = 64
 
@@ -134,17 +133,18 @@ def main(argv=None):
         stack_gb = args.lights * height * width * 5 / 1e9
         print(f"stack {height} x {width} x {args.lights} lights ({stack_gb:.1f} GB on disk, float32 + valid) "
               f"ready in {time.perf_counter() - start:.0f} s")
-        options = resolve_selection(lights, {})
+        solve = plan_solve("biquadratic", lights, {})
+        options = solve.options
         mask = np.load(folder / "mask.npy")
         start = time.perf_counter()
-        context = _prepare("biquadratic", folder, mask, lights, options)
+        context = tile_context(folder, mask, solve)
         print(f"shared context fitted once in {time.perf_counter() - start:.1f} s "
               f"(shape prior {'on' if context else 'off'}, selection {options['selection']})")
-        chunk = serial_chunk_size()
+        chunk = CHUNK_SIZE
         tiles = pixel_tiles(mask, args.tile_pixels, chunk)
         chosen = tiles[:max(1, int(round(len(tiles) * args.fraction)))]
         pixels = sum(tile[4] for tile in chosen)
-        plan = TilePlan(str(root), "biquadratic", options, lights, context, (height, width), tiles, {}, {}, chunk)
+        plan = TilePlan(str(root), solve, context, (height, width), tiles, chunk)
         del mask
         print(f"{len(chosen)} of {len(tiles)} tiles, {pixels / 1e6:.2f} Mpx solved per run")
         base = base_cpu = None

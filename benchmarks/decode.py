@@ -21,7 +21,7 @@ import numpy as np
 
 from pipeline.decode import decode_frame, decode_session
 from pipeline.dng import write_dng, write_dng_file
-from pipeline.decode_pool import decode_task
+from pipeline.decode.pool import decode_task
 from pipeline.session import Session
 
 TARGET = 0.3  # seconds per 12 MP frame on the unbiased (mosaic) path

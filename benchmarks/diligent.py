@@ -8,16 +8,14 @@ pixels per second and the time ratio to plain Lambertian least squares on the sa
 """
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.diligent import read_diligent  # noqa: E402
-from pipeline.photometric import estimate_normals  # noqa: E402
+from pipeline.importers import read_diligent
+from pipeline.photometric import estimate_normals
 
 PUBLISHED = {"ball": (4.10, 1.74), "cat": (8.41, 6.12), "pot1": (8.89, 6.51), "bear": (8.39, 6.12),
              "pot2": (14.65, 8.78), "buddha": (14.92, 10.60), "goblet": (18.50, 10.09),

@@ -17,7 +17,6 @@ import argparse
 import os
 import resource
 import statistics
-import sys
 import time
 import tracemalloc
 from pathlib import Path
@@ -25,10 +24,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
-from pipeline.imageio import read_mask, read_normal_png  # noqa: E402
-from pipeline.integrate import METHODS, integrate_normals_full  # noqa: E402
+from pipeline.imageio import read_mask, read_normal_png
+from pipeline.integrate import METHODS, integrate_normals_full
 
 TARGET_ERROR_MM = 0.074
 TARGET_SECONDS = {"smooth": 0.5, "bilateral": 1.5}

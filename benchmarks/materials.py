@@ -9,15 +9,12 @@ dropped when the check fails: ``fallback_t_low=None``) and of the paper's rule g
 only the selection and the prior differ.
 """
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "pipeline"))
-from pipeline.photometric import estimate_normals  # noqa: E402
-from ps_synthetic import angular_error_deg, cook_torrance_images, hemisphere_lights, sphere_normals  # noqa: E402
+from pipeline.photometric import estimate_normals
+from pipeline.experiments.synthetic import angular_error_deg, cook_torrance_images, hemisphere_lights, sphere_normals
 
 NARROW = hemisphere_lights(64, seed=3, min_elevation_deg=48)
 RUNS = (("default", {}), ("no fallback", {"fallback_t_low": None}),

@@ -14,18 +14,15 @@
 
 import argparse
 import os
-import sys
 import time
 import tracemalloc
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "pipeline"))
 
-from pipeline.photometric import estimate_normals  # noqa: E402
-from ps_synthetic import cook_torrance_images, hemisphere_lights  # noqa: E402
+from pipeline.photometric import estimate_normals
+from pipeline.experiments.synthetic import cook_torrance_images, hemisphere_lights
 
 
 def blob(pixels):

@@ -10,20 +10,21 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.decode_image import encode_gamma
+from pipeline.gamma import encode_gamma
 from pipeline.errors import ImageFileError, InputError, StageError
 from pipeline.imageio import read_image, read_mask
 from pipeline.session import file_sha256
 from pipeline.lightsio import LightSet, write_lights_yaml, write_lp
+from pipeline.paths import LIGHTS, LIGHTS_LP
 
 from .intensities import target_intensities
 from .overlays import write_overlay, write_sphere_overlays
 from .positions import frame_offset
 from .sphere import calibrate_sphere
 
-__all__ = ["calibrate_session", "LIGHTS", "LP", "OVERLAY"]
+__all__ = ["calibrate_session", "OVERLAY", "OVERLAY_OUTLINE"]
 
-LIGHTS, LP, OVERLAY = "calibration/lights.yaml", "calibration/lights.lp", "calibration/overlay.png"
+OVERLAY = "calibration/overlay.png"
 OVERLAY_OUTLINE = "calibration/overlay_outline.png"
 
 
@@ -272,8 +273,8 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
     objects = {f["light"]: f for f in session.frames("object")}
     names = [objects[i].get("source", objects[i]["file"].split("/")[-1]) if i in objects else frames[k]["id"]
              for k, i in enumerate(order)]
-    write_lp(session.path(LP), names, directions)
-    outputs = [LIGHTS, LP] + _overlays(session, images, result, photo)
+    write_lp(session.path(LIGHTS_LP), names, directions)
+    outputs = [LIGHTS, LIGHTS_LP] + _overlays(session, images, result, photo)
     session.record_stage("calibrate", params, inputs, outputs, seconds=time.perf_counter() - start,
                          flagged=flags, light_model=lights.extra["light_model"])
     if flags:

@@ -5,7 +5,7 @@
 >>> print(summary_table(outcomes))
 
 Each session is a chain of tasks: a *head* task runs decode and calibrate and plans the normals
-stage (:func:`pipeline.cluster_tiles.plan_normals`: scratch stack, shared shape fitted once);
+stage (:func:`pipeline.photometric.tiles.plan_normals`: scratch stack, shared shape fitted once);
 one task per pixel tile solves its rows from the memory-mapped stack; a *tail* task assembles
 the tiles into ``normals/``, records the stage, and runs integrate and report. Every file is
 written by the task that computed it, atomically, so a worker killed mid-task leaves no partial
@@ -21,10 +21,10 @@ import time
 import uuid
 from pathlib import Path
 
-from .cluster_tiles import WHOLE_IMAGE, assemble_normals, plan_normals, run_tile
 from .errors import InputError, PsrigError, StageError
+from .photometric import WHOLE_IMAGE, assemble_normals, plan_normals, run_tile
 from .progress import progress
-from .runner import SessionOutcome, StageOutcome, _run_stage, recorded_options
+from .runner import SessionOutcome, StageOutcome, check_stage_range, recorded_options, run_stage
 from .session import STAGES, Session
 
 __all__ = ["run_batch", "open_client", "summary_table", "TILE_PIXELS", "CONNECT_TIMEOUT"]
@@ -75,7 +75,7 @@ def _session_head(root, options, forced, stop, tile_pixels):
         session = Session.open(root)
         for name in _stage_names(stop):
             if name != "normals":
-                outcome.stages.append(_run_stage(session, name, options, name in forced, 1))
+                outcome.stages.append(run_stage(session, name, options, name in forced, 1))
                 continue
             start = time.perf_counter()
             try:
@@ -85,7 +85,7 @@ def _session_head(root, options, forced, stop, tile_pixels):
             except PsrigError as exc:
                 raise StageError(f"stage normals: {exc}") from None
             if plan == WHOLE_IMAGE:   # not to be tiled: the serial stage, in this task
-                outcome.stages.append(_run_stage(session, name, options, True, 1))
+                outcome.stages.append(run_stage(session, name, options, True, 1))
             elif plan is not None:
                 return outcome, plan
             else:
@@ -105,11 +105,11 @@ def _session_tail(outcome, plan, options, forced, stop, tiles):
             raise StageError(f"stage normals: {exc}") from None
         session = Session.open(plan.root)
         if assembled == WHOLE_IMAGE:  # the lights need a correction only a whole solve makes
-            _run_stage(session, "normals", options, True, 1)
-        outcome.stages.append(StageOutcome("normals", True, time.time() - plan.started))
+            run_stage(session, "normals", options, True, 1)
+        outcome.stages.append(StageOutcome("normals", True, time.time() - plan.run.started))
         names = _stage_names(stop)
         for name in names[names.index("normals") + 1:]:
-            outcome.stages.append(_run_stage(session, name, options, name in forced, 1))
+            outcome.stages.append(run_stage(session, name, options, name in forced, 1))
     except PsrigError as exc:
         outcome.error = str(exc)
     return outcome
@@ -142,9 +142,7 @@ def run_batch(roots, *, scheduler=None, jobs=2, options=None, force=False, start
     list of SessionOutcome
         In the order of ``roots``; a failing session does not stop the others.
     """
-    for flag, value in (("--from", start), ("--to", stop)):
-        if value is not None and value not in STAGES:
-            raise StageError(f"{flag} {value!r}: not a stage; stages are {', '.join(STAGES)}")
+    check_stage_range(start, stop)
     roots = [str(Path(r)) for r in roots]
     options = options or {}
     forced = set(STAGES if force else STAGES[STAGES.index(start):] if start else ())

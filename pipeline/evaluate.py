@@ -21,12 +21,12 @@ from .atomic import atomic_write_text
 from .errors import InputError
 from .imageio import read_image, read_mask, read_normal_png, write_image
 from .lightsio import read_lights
+from .paths import DEPTH, ERROR_MAP, EVAL, INTEGRATION, LIGHTS, NORMALS, NORMALS_MASK
 
 __all__ = ["angular_error", "error_stats", "light_errors", "intensity_errors", "position_errors", "depth_error", "error_map_rgb",
            "evaluate_session", "EVAL_FILE", "ERROR_MAP", "PERCENTILES", "THRESHOLDS"]
 
-EVAL_FILE = "normals/eval.yaml"
-ERROR_MAP = "normals/error.png"
+EVAL_FILE = EVAL
 PERCENTILES = (25, 75, 90, 95)
 THRESHOLDS = (5, 10, 20)
 
@@ -146,7 +146,7 @@ def _read_normals(path):
 
 
 def _eval_normals(session, max_deg):
-    est_path, mask_path = session.path("normals/normals.exr"), session.path("normals/mask.png")
+    est_path, mask_path = session.path(NORMALS), session.path(NORMALS_MASK)
     if not est_path.is_file():
         return None
     est, est_mask = _read_normals(est_path)
@@ -191,7 +191,7 @@ def position_errors(estimated, truth):
 
 
 def _eval_lights(session):
-    est_path = session.path("calibration/lights.yaml")
+    est_path = session.path(LIGHTS)
     if not est_path.is_file():
         return None
     estimated, truth = read_lights(est_path), read_lights(session.truth("lights"))
@@ -216,11 +216,11 @@ def _eval_lights(session):
 
 
 def _eval_depth(session):
-    est_path = session.path("depth/depth.exr")
+    est_path = session.path(DEPTH)
     if not est_path.is_file():
         return None
     projection = "orthographic"
-    info_path = session.path("depth/integration.yaml")
+    info_path = session.path(INTEGRATION)
     if info_path.is_file():
         info = yaml.safe_load(info_path.read_text(encoding="utf-8")) or {}
         projection = info.get("projection", projection)

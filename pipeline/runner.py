@@ -20,12 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from .errors import PsrigError, StageError
+from .paths import LIGHTS
 from .session import STAGES, Session
 
-__all__ = ["run_session", "run_sessions", "RUNNERS", "StageOutcome", "SessionOutcome",
-           "stage_options"]
-
-LIGHTS = "calibration/lights.yaml"
+__all__ = ["run_session", "run_sessions", "run_stage", "check_stage_range", "RUNNERS", "StageOutcome",
+           "SessionOutcome", "stage_options", "recorded_options"]
 
 
 @dataclass
@@ -83,7 +82,7 @@ def _calibrate(session, options, force, jobs):
             return note
         raise StageError(f"{session.root}: no sphere frames and no {LIGHTS}; capture a chrome "
                          "sphere or import lights (psrig import images --lights FILE)")
-    from calibration.stage import calibrate_session
+    from calibration import calibrate_session
 
     calibrate_session(session, force=force, **options)
     return ""
@@ -92,13 +91,13 @@ def _calibrate(session, options, force, jobs):
 def _normals(session, options, force, jobs):
     if not session.path(LIGHTS).is_file():
         raise StageError(f"{session.path(LIGHTS)}: missing; the calibrate stage makes it")
-    from .normals_stage import normals_session
+    from .photometric import normals_session
 
     normals_session(session, force=force, **options)
 
 
 def _integrate(session, options, force, jobs):
-    from .integrate_stage import integrate_session
+    from .integrate import integrate_session
 
     result = integrate_session(session, force=force, **options)
     return "; ".join(result.warnings) if result is not None else None
@@ -157,7 +156,9 @@ def _integrate_kwargs(params):
 _RECORDED = {"decode": dict, "calibrate": _calibrate_kwargs, "normals": dict, "integrate": _integrate_kwargs}
 
 
-def _run_stage(session, name, options, force, jobs):
+def run_stage(session, name, options, force, jobs):
+    """Run one stage (a name of :data:`RUNNERS`) with the options recorded for it, replaced key by
+    key by ``options[name]``; returns a :class:`StageOutcome`. StageError names the stage."""
     # record_stage stores a new dict; a skipped stage leaves the old one in place (timestamps
     # have one-second resolution, too coarse to tell a fast rerun)
     before = session.stage(name)
@@ -178,6 +179,13 @@ def _run_stage(session, name, options, force, jobs):
                          + (f" ({failed})" if failed else ""))
     ran = record is not None and record is not before
     return StageOutcome(name, ran, seconds, note or "")
+
+
+def check_stage_range(start, stop):
+    """StageError unless ``start`` (--from) and ``stop`` (--to) are None or stage names."""
+    for flag, value in (("--from", start), ("--to", stop)):
+        if value is not None and value not in STAGES:
+            raise StageError(f"{flag} {value!r}: not a stage; stages are {', '.join(STAGES)}")
 
 
 def run_session(root, *, options=None, force=False, start=None, stop=None, jobs=None, echo=None):
@@ -205,14 +213,12 @@ def run_session(root, *, options=None, force=False, start=None, stop=None, jobs=
     list of StageOutcome
         Raises StageError naming the stage (and the file) when one cannot run.
     """
-    for flag, value in (("--from", start), ("--to", stop)):
-        if value is not None and value not in STAGES:
-            raise StageError(f"{flag} {value!r}: not a stage; stages are {', '.join(STAGES)}")
+    check_stage_range(start, stop)
     session = Session.open(root)
     forced = set(STAGES if force else STAGES[STAGES.index(start):] if start else ())
     outcomes = []
     for name in STAGES[:STAGES.index(stop or STAGES[-1]) + 1]:
-        outcome = _run_stage(session, name, options or {}, name in forced, jobs)
+        outcome = run_stage(session, name, options or {}, name in forced, jobs)
         outcomes.append(outcome)
         if echo:
             echo(outcome.describe())
@@ -230,20 +236,13 @@ def _run_one(root, options, force, start, stop, jobs):
     return outcome
 
 
-def run_sessions(roots, *, options=None, force=False, start=None, stop=None, jobs=1, echo=None,
-                 scheduler=None):
+def run_sessions(roots, *, options=None, force=False, start=None, stop=None, jobs=1, echo=None):
     """Run several sessions, ``jobs`` at a time in separate processes.
 
     Returns a list of SessionOutcome in the order of ``roots``; a failing session does not stop
-    the others. With one job the sessions run in this process, one after the other. With a
-    ``scheduler`` (a Dask scheduler address, or "local" for a LocalCluster of ``jobs`` workers)
-    the batch runs on Dask, photometric stereo in pixel tiles (:mod:`pipeline.cluster`).
+    the others. With one job the sessions run in this process, one after the other. (A batch
+    on Dask, with photometric stereo in pixel tiles, is :func:`pipeline.cluster.run_batch`.)
     """
-    if scheduler is not None:
-        from .cluster import run_batch
-
-        return run_batch(roots, scheduler=scheduler, jobs=jobs, options=options, force=force,
-                         start=start, stop=stop, echo=echo)
     roots = [str(Path(r)) for r in roots]
     if jobs <= 1 or len(roots) == 1:
         outcomes = []

@@ -24,6 +24,7 @@ import yaml
 from . import __version__
 from .atomic import atomic_write_bytes, atomic_write_text
 from .errors import ManifestError, SessionError
+from .yamlio import plain
 
 __all__ = ["Session", "FORMAT", "FRAME_KINDS", "STAGES", "file_sha256", "now_iso"]
 
@@ -299,7 +300,7 @@ class Session:
         record = self.stage(name)
         if not record or record.get("status", "ok") != "ok":
             return False
-        if record.get("params") != _plain(params) or record.get("inputs") != inputs:
+        if record.get("params") != plain(params) or record.get("inputs") != inputs:
             return False
         for rel, digest in (record.get("outputs") or {}).items():
             path = self.root / rel
@@ -323,7 +324,7 @@ class Session:
             'ok', or 'partial' / 'failed' (then ``failed`` in ``extra`` says which and why).
         """
         record = {
-            "params": _plain(params),
+            "params": plain(params),
             "version": __version__,
             "inputs": dict(inputs),
             "outputs": _output_hashes(self, outputs),
@@ -332,7 +333,7 @@ class Session:
         }
         if seconds is not None:
             record["seconds"] = round(float(seconds), 3)
-        record.update(_plain(extra))
+        record.update(plain(extra))
         self.manifest["stages"][name] = record
         if save:
             self.save()
@@ -365,22 +366,6 @@ def _output_hashes(session, outputs):
 
 def _frame_id(frame):
     return frame["id"] if isinstance(frame, dict) else str(frame)
-
-
-def _plain(value):
-    """Convert tuples and numpy scalars to plain YAML types, recursively."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if hasattr(value, "item") and callable(value.item) and not isinstance(value, (str, bytes)):
-        try:
-            return value.item()
-        except (ValueError, TypeError):
-            pass
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    return value
 
 
 # ---------------------------------------------------------------------- validation

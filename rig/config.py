@@ -31,6 +31,7 @@ import yaml
 
 from pipeline.errors import InputError, PsrigError
 from pipeline.lightsio import LightSet, read_lp
+from pipeline.yamlio import plain
 
 __all__ = ["ConfigError", "RigConfig", "Section", "LightsConfig", "CameraConfig", "FramesConfig",
            "load_rigs", "get_rig", "find_rigs_file", "parse_rigs", "default_rig_name", "ring_directions",
@@ -52,17 +53,6 @@ class ConfigError(PsrigError):
     """A rig file or rig definition is invalid; the message names the file, rig and key."""
 
 
-def _plain(value):
-    """YAML-friendly copy: arrays to lists, paths to strings, sections to dicts."""
-    if isinstance(value, np.ndarray):
-        return np.round(value, 9).tolist()
-    if isinstance(value, Path):
-        return str(value)
-    if isinstance(value, dict):
-        return {key: _plain(item) for key, item in value.items()}
-    return value
-
-
 class Section(dict):
     """A validated section: a plain dict (drivers take it as is) with attribute access too."""
 
@@ -74,7 +64,7 @@ class Section(dict):
 
     def to_dict(self):
         """Plain YAML-friendly dict (arrays as lists, paths as strings)."""
-        return _plain(self)
+        return plain(self, 9)
 
 
 class LightsConfig(Section):
@@ -126,7 +116,7 @@ class RigConfig:
 
     def to_dict(self):
         """The whole rig as a plain YAML-friendly dict."""
-        return {f.name: _plain(getattr(self, f.name)) for f in fields(self)}
+        return {f.name: plain(getattr(self, f.name), 9) for f in fields(self)}
 
     def light_set(self):
         """The nominal lights as a :class:`pipeline.lightsio.LightSet` (intensities 1)."""

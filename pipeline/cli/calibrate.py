@@ -55,7 +55,7 @@ def _read_K(path):
 
 
 def run(args):
-    from calibration.stage import calibrate_session
+    from calibration import calibrate_session
 
     circles = parse_circles(args.circle)
     circle = None if not circles else (circles[0] if len(circles) == 1 else circles)

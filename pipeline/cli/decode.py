@@ -4,7 +4,7 @@ import argparse
 import sys
 
 from ..decode import decode_session
-from ..decode_image import parse_gamma
+from ..gamma import parse_gamma
 from ..session import Session
 
 __all__ = ["register"]

@@ -8,8 +8,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..imageio import read_image, read_mask, read_normal_png
-from ..integrate import METHODS
-from ..integrate_stage import integrate_files, integrate_session, read_intrinsics, write_depth_outputs
+from ..integrate import METHODS, integrate_files, integrate_session, read_intrinsics, write_depth_outputs
 from ..session import Session
 
 __all__ = ["register"]

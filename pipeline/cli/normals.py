@@ -34,7 +34,7 @@ def register(sub):
 
 
 def run(args):
-    from ..normals_stage import normals_session
+    from ..photometric import normals_session
 
     t_low = args.t_low
     if t_low is not None:

@@ -44,14 +44,15 @@ def run(args):
         return 2
     options = stage_options(method=args.method, t_low=args.t_low,
                             integrate_method=args.integrate_method, binning=args.binning)
-    outcomes = run_sessions(args.sessions, options=options, force=args.force, start=args.start,
-                            stop=args.stop,
-                            jobs=args.jobs, echo=lambda line: print(line, flush=True),
-                            scheduler=args.scheduler)
-    if args.scheduler is not None:
-        from ..cluster import summary_table
+    run = dict(options=options, force=args.force, start=args.start, stop=args.stop, jobs=args.jobs,
+               echo=lambda line: print(line, flush=True))
+    if args.scheduler is not None:  # a batch on Dask, photometric stereo in pixel tiles
+        from ..cluster import run_batch, summary_table
 
+        outcomes = run_batch(args.sessions, scheduler=args.scheduler, **run)
         print(summary_table(outcomes), flush=True)
+    else:
+        outcomes = run_sessions(args.sessions, **run)
     failed = [o for o in outcomes if o.error]
     for outcome in failed:
         print(f"psrig run: error: {outcome.error}", file=sys.stderr)

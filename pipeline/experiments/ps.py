@@ -211,7 +211,7 @@ def ps_figure(results, truth, mask, image):
 
 def run_diligent(folder, t_low=0.25, methods=PS_METHODS, shadow=0.1, psrig_default=True):
     """run_methods on a DiLiGenT object folder (grey images divided by the light intensities)."""
-    from ..diligent import read_diligent
+    from ..importers import read_diligent
     from ..errors import InputError
 
     obj = read_diligent(folder)

@@ -12,26 +12,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
+from ..registry import Registry
 
 __all__ = ["Geometry", "ReflectanceModel", "LinearModel", "MODELS", "register_model", "get_model",
            "solve_batched"]
 
-MODELS = {}
+#: Reflectance models by name: one instance of each registered class
+MODELS = Registry("reflectance model")
 
 
 def register_model(cls):
     """Class decorator: instantiate ``cls`` and register it under ``cls.name``."""
-    MODELS[cls.name] = cls()
+    MODELS.register(cls.name, cls())
     return cls
 
 
 def get_model(name):
-    """The registered model called ``name`` (see :data:`MODELS`)."""
-    try:
-        return MODELS[name]
-    except KeyError:
-        raise InputError(f"unknown reflectance model {name!r}; known: {', '.join(sorted(MODELS))}") from None
+    """The registered model called ``name`` (see :data:`MODELS`); the error lists the names."""
+    return MODELS[name]
 
 
 @dataclass

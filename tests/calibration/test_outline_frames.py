@@ -7,7 +7,7 @@ import yaml
 from calibration.circle import find_spheres
 from calibration.sphere import calibrate_sphere
 from pipeline.cli import main
-from pipeline.decode_image import encode_gamma, inverse_gamma_lut
+from pipeline.gamma import encode_gamma, inverse_gamma_lut
 from pipeline.errors import InputError
 from pipeline.imageio import read_image, write_image
 from pipeline.session import Session

@@ -1,13 +1,13 @@
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from calibration.positions import light_directions_at, triangulate
 from calibration.sphere import CalibrationError, calibrate_lights, calibrate_sphere
+from tests import SHARED_DATA
 from tests.calibration.render import render_chrome
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "psbox"
+DATA = SHARED_DATA / "psbox"
 
 
 def _angles(a, b):

@@ -16,14 +16,15 @@ import pytest
 pytest.importorskip("distributed")
 import cloudpickle  # noqa: E402  (installed with distributed)
 
-from pipeline import cluster, cluster_tiles, runner  # noqa: E402
+from pipeline import cluster, runner  # noqa: E402
+from pipeline.photometric import tiles as cluster_tiles  # noqa: E402
 from pipeline.cli import main  # noqa: E402
 from pipeline.imageio import write_image, write_mask  # noqa: E402
 from pipeline.importers import import_images  # noqa: E402
 from pipeline.errors import InputError, StageError  # noqa: E402
-from pipeline.normals_stage import normals_session  # noqa: E402
+from pipeline.photometric import normals_session  # noqa: E402
 from pipeline.session import Session  # noqa: E402
-from tiny_session import sphere  # noqa: E402
+from tests.pipeline.tiny_session import sphere  # noqa: E402
 
 # the kill hook below is defined here; workers cannot import this test module by name
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
@@ -261,8 +262,8 @@ def test_non_finite_observation_in_a_tile_is_an_error_naming_image_and_rows(tmp_
 def make_miscalibrated_session(folder, name, size=80):
     """Sharp highlights under a narrow cone whose given lights are 5 % too narrow in polar angle:
     the serial stage corrects the lights from the specular peaks (pipeline.ps_anchor)."""
-    from pipeline.ps_anchor import scale_cone
-    from ps_synthetic import cook_torrance_images, hemisphere_lights, import_stack, sphere_normals
+    from pipeline.photometric.anchor import scale_cone
+    from tests.pipeline.photometric.ps_synthetic import cook_torrance_images, hemisphere_lights, import_stack, sphere_normals
 
     lights = hemisphere_lights(96, seed=1, min_elevation_deg=48)
     normals, mask = sphere_normals(size)

@@ -27,7 +27,7 @@ def test_native_types_and_jpg(tmp_path):
 
 def test_many_channel_exr(tmp_path):
     params = np.random.default_rng(1).random((5, 6, 9)).astype(np.float32)
-    from pipeline.normals_stage import PAPER_NAMES
+    from pipeline.photometric.stage import PAPER_NAMES
     write_image(tmp_path / "brdf.exr", params, channel_names=PAPER_NAMES)
     np.testing.assert_array_equal(read_image(tmp_path / "brdf.exr"), params)
     many = np.random.default_rng(2).random((3, 4, 12)).astype(np.float32)

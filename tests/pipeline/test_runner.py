@@ -6,7 +6,7 @@ from pipeline import runner
 from pipeline.cli import main
 from pipeline.errors import StageError
 from pipeline.session import STAGES, Session
-from tiny_session import lambert_stage, make_session
+from tests.pipeline.tiny_session import lambert_stage, make_session
 
 
 @pytest.fixture
@@ -105,7 +105,7 @@ def test_sessions_in_parallel_processes(tmp_path, capsys):
 
 
 def test_run_keeps_the_settings_a_stage_was_run_with_by_hand(tmp_path):
-    from pipeline.normals_stage import normals_session
+    from pipeline.photometric import normals_session
 
     root = make_session(tmp_path).root
     runner.run_session(root, stop="calibrate")

@@ -1,0 +1,85 @@
+"""Compile with numba on first use, or fall back to numpy: the one place that decides.
+
+Kernels in psrig are plain Python over scalars, compiled with numba the first time they are
+needed (or loaded from numba's on-disk cache). Nothing is compiled at import. A compilation
+happens once, under a lock, so concurrent threads wait for it. Any failure there (numba
+missing, an unwritable cache, a compiler error) gives one RuntimeWarning and the numpy
+implementation from then on: a missing compiler must never stop a run.
+
+``PSRIG_NO_JIT=1`` in the environment selects the numpy implementations everywhere (they are
+the reference the compiled kernels are tested against).
+
+>>> KERNEL = Compiled("integration kernel", build)   # build() compiles and warms up
+>>> kernel = KERNEL.get()                              # None: use numpy
+"""
+
+import os
+import threading
+import time
+import warnings
+
+__all__ = ["Compiled", "ENV_NO_JIT", "jit_allowed", "njit"]
+
+ENV_NO_JIT = "PSRIG_NO_JIT"
+
+
+def jit_allowed():
+    """False when ``PSRIG_NO_JIT`` is set to anything but '' or '0'."""
+    return os.environ.get(ENV_NO_JIT, "") in ("", "0")
+
+
+def njit(func):
+    """``numba.njit`` with psrig's flags: cached on disk, GIL released, numpy's error model.
+
+    fastmath stays off: the same rounding on every machine, so compiled and numpy results
+    agree to the tests' precision and iterative solvers take the same trajectory.
+    """
+    import numba
+
+    return numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")(func)
+
+
+class Compiled:
+    """Something compiled lazily by ``build()`` (any object: a dispatcher, a dict of them).
+
+    Parameters
+    ----------
+    what : str
+        Named in the warning when compiling fails ("photometric-stereo kernels").
+    build : callable
+        Compiles (and warms up) on first :meth:`get`; its exceptions mean "use numpy".
+    """
+
+    def __init__(self, what, build):
+        self.what = what
+        self.build = build
+        self._lock = threading.Lock()
+        self._value = None
+        self.failed = False
+        self.seconds = None   # spent compiling or loading from the cache, once known
+
+    def enabled(self):
+        """True unless the environment says numpy or compiling has failed."""
+        return jit_allowed() and not self.failed
+
+    def get(self):
+        """The compiled object, or None when the numpy implementation must be used."""
+        if not self.enabled():
+            return None
+        with self._lock:
+            if self._value is None and not self.failed:
+                start = time.perf_counter()
+                try:
+                    self._value = self.build()
+                except Exception as exc:  # any failure here must degrade to numpy, never stop a run
+                    self.failed = True
+                    warnings.warn(f"psrig: compiled {self.what} unavailable, using numpy "
+                                  f"({type(exc).__name__}: {exc})", RuntimeWarning, stacklevel=3)
+                    return None
+                self.seconds = time.perf_counter() - start
+        return self._value
+
+    def reset(self):
+        """Forget the compiled object and any failure (tests, or after changing the build)."""
+        with self._lock:
+            self._value, self.failed, self.seconds = None, False, None

@@ -1,0 +1,42 @@
+"""Session-relative paths of the files that stages hand to each other (see DESIGN.md).
+
+One name per file, so a stage that writes a file and the stages that read it cannot disagree
+on where it lies. Paths are POSIX-style and relative to the session folder
+(:meth:`pipeline.session.Session.path` resolves and checks them).
+"""
+
+__all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP",
+           "ERROR_MAP", "EVAL", "DEPTH", "MESH", "SHADED", "INTEGRATION", "REPORT", "TRUTH_LIGHTS",
+           "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK"]
+
+#: calibrate stage (or an importer) -> normals, report, eval: the lights in use
+LIGHTS = "calibration/lights.yaml"
+#: the same lights as an RTI .lp file
+LIGHTS_LP = "calibration/lights.lp"
+#: an object mask given at import
+OBJECT_MASK = "calibration/object_mask.png"
+
+#: normals stage -> integrate, report, eval
+NORMALS = "normals/normals.exr"
+NORMALS_MASK = "normals/mask.png"
+ALBEDO = "normals/albedo.exr"
+RESIDUAL = "normals/residual.exr"
+STATUS_MAP = "normals/status.png"
+#: eval -> report
+ERROR_MAP = "normals/error.png"
+EVAL = "normals/eval.yaml"
+
+#: integrate stage -> report, eval
+DEPTH = "depth/depth.exr"
+MESH = "depth/mesh.ply"
+SHADED = "depth/shaded.png"
+INTEGRATION = "depth/integration.yaml"
+
+#: report stage
+REPORT = "report/index.html"
+
+#: ground truth of simulated and imported sessions
+TRUTH_LIGHTS = "truth/lights.yaml"
+TRUTH_NORMALS = "truth/normals.exr"
+TRUTH_NORMALS_PNG = "truth/normals.png"
+TRUTH_MASK = "truth/mask.png"

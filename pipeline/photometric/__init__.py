@@ -1,0 +1,38 @@
+"""Photometric stereo: surface normals per pixel from images under known lights.
+
+>>> from pipeline.photometric import estimate_normals
+>>> result = estimate_normals(images, lights, mask=None, method="biquadratic")
+
+Where things live:
+
+- :mod:`.estimate`: the dispatcher :func:`estimate_normals` and its plan (input checks, the
+  method, the selection, the specular anchor);
+- :mod:`.engine`: chunks of pixels on all cores, shared by every path;
+- :mod:`.methods`: the method registry :data:`METHODS`, the status codes, the Lambertian
+  baselines and the paper's alternation with any reflectance model;
+- :mod:`.biquadratic`: the default method; :mod:`.alternation` its per-pixel mathematics
+  (compiled in :mod:`.kernels`); :mod:`.shared_shape` the object's one shape and the
+  single-material check; :mod:`.selection` which observations each pixel uses;
+- :mod:`.anchor`: the light cone corrected on specular peaks;
+- :mod:`.near_lights`, :mod:`.near_depth`: near point lights, at the integrated depth;
+- :mod:`.stage`: the ``normals`` stage of a session; :mod:`.tiles`: the same stage in pixel
+  tiles for Dask.
+
+The methods and the measurements behind the defaults: docs/photometric-stereo.md.
+"""
+
+from . import biquadratic  # noqa: F401  (registers the default method)
+from .biquadratic import Biquadratic, biquadratic_method
+from .estimate import PhotometricResult, SolvePlan, check_lights, estimate_normals, plan_solve
+from .methods import METHODS, STATUS, STATUS_NAMES, get_method, register_model_methods
+from .near_lights import PointLights, observations_at
+from .selection import light_spread_deg, resolve_selection
+from .stage import normals_session
+from .tiles import SCRATCH, WHOLE_IMAGE, TilePlan, assemble_normals, plan_normals, run_tile
+
+register_model_methods()
+
+__all__ = ["estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_lights", "METHODS",
+           "get_method", "STATUS", "STATUS_NAMES", "Biquadratic", "biquadratic_method", "PointLights",
+           "observations_at", "light_spread_deg", "resolve_selection", "normals_session", "TilePlan",
+           "plan_normals", "run_tile", "assemble_normals", "WHOLE_IMAGE", "SCRATCH"]

@@ -1,0 +1,233 @@
+"""The chunk engine: one estimation of an image, chunk by chunk, on all cores.
+
+Every path that solves photometric stereo goes through these functions: the in-memory
+:func:`pipeline.photometric.estimate_normals` (all chunks here, :func:`run_chunks`) and the
+tiled stage of :mod:`pipeline.photometric.tiles` (a tile's chunks on a Dask worker, with
+:func:`solve_chunk`, scattered by :func:`scatter_chunk` into :func:`allocate_maps`). So a
+chunk holds the same pixels and gets the same arithmetic whichever path runs it.
+
+A method (:mod:`pipeline.photometric.methods`) may prepare a shared context once per image
+(:func:`prepare_context`; the biquadratic shared shape) and may split a chunk into a
+``select`` phase, which never waits for that context, and a ``fit`` phase, which does. While
+one worker prepares the context, the others select chunks ahead (up to
+:data:`LOOKAHEAD_BYTES`). Chunks run on one thread per core with one BLAS thread each. The
+default chunk (2048 pixels) keeps a chunk's (N, K) arrays near the cores' caches: measured
+faster than 8192.
+"""
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from .anchor import highlight_mismatch
+from .methods import STATUS
+from .near_lights import PointLights, observations_at
+
+__all__ = ["Context", "known_context", "OnePhase", "phases_of", "gatherer", "prepare_context", "solve_chunk",
+           "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE"]
+
+#: Pixels per chunk (memory per chunk is about CHUNK_SIZE x K x 200 bytes)
+CHUNK_SIZE = 2048
+#: Bytes of observations (float64) a worker holds selected ahead while the shared context is
+#: prepared; the selection's weights make about three times that. 32 MiB is 20 chunks of 2048
+#: pixels x 96 lights, which on that object takes the wall time from 0.46 to 0.42 s (2 cores).
+LOOKAHEAD_BYTES = 32 * 2**20
+
+
+class OnePhase:
+    """A method with no selection phase of its own, run whole in :meth:`fit`."""
+
+    def __init__(self, solver):
+        self.solver = solver
+
+    def select(self, obs, valid, lights, context=None, **_):
+        return {"obs": obs, "valid": valid, "lights": lights}
+
+    def fit(self, picked, context=None, **options):
+        return self.solver(picked["obs"], picked["valid"], picked["lights"], context=context, **options)
+
+
+def phases_of(solver):
+    """``solver`` as an object with ``select`` and ``fit`` phases."""
+    return solver if hasattr(solver, "select") else OnePhase(solver)
+
+
+class Context:
+    """A method's prepared context (a dict), computed in the background; ``get`` waits for it."""
+
+    def __init__(self, future):
+        self._future = future
+
+    def ready(self):
+        return self._future is None or self._future.done()
+
+    def get(self, key, default=None):
+        return default if self._future is None else self._future.result().get(key, default)
+
+    def known(self):
+        """The context if it is ready, else an empty dict (never waits)."""
+        return self._future.result() if self._future is not None and self._future.done() else {}
+
+
+def known_context(context):
+    """What a context (a plain dict, a :class:`Context` or None) holds already, without waiting."""
+    return context.known() if isinstance(context, Context) else (context or {})
+
+
+def gatherer(flat_images, flat_valid, lights, offset=0):
+    """A function ``gather(idx)`` returning the solver's view of pixels ``idx``.
+
+    Parameters
+    ----------
+    flat_images : ndarray (K, P)
+        Observations, any float dtype (memory-mapped is fine: only ``idx`` is read).
+    flat_valid : ndarray (K, P) bool or None
+    lights : ndarray (K, 3) or (K, H, W, 3), or PointLights
+    offset : int
+        Index in the whole image of ``flat_images``' first pixel (a tile's first row).
+
+    Returns
+    -------
+    callable
+        ``gather(idx) -> (obs (N, K) float64, valid (N, K) or None, lights (K, 3) or (N, K, 3))``.
+    """
+    k = flat_images.shape[0]
+    flat_lights = None if isinstance(lights, PointLights) or lights.ndim == 2 else lights.reshape(k, -1, 3)
+
+    def gather(idx):
+        obs = flat_images[:, idx].T.astype(np.float64)
+        obs_valid = None if flat_valid is None else flat_valid[:, idx].T
+        if flat_lights is not None:
+            return obs, obs_valid, np.ascontiguousarray(flat_lights[:, idx + offset].transpose(1, 0, 2))
+        obs, obs_lights = observations_at(lights, obs, idx + offset)
+        return obs, obs_valid, obs_lights
+
+    return gather
+
+
+def prepare_context(solver, gather, pixels, options):
+    """The method's shared context fitted on ``pixels`` (flat indices), {} when it has none."""
+    return solver.prepare(gather, pixels, **options) if hasattr(solver, "prepare") else {}
+
+
+def solve_chunk(phases, picked, context, options, anchor):
+    """The fit of one selected chunk; with ``anchor``, also its specular-peak mismatches.
+
+    ``picked`` is what ``phases.select`` returned. The mismatches (``chunk["mismatch"]``,
+    :func:`pipeline.photometric.anchor.highlight_mismatch`) are measured here, on the chunk's
+    observations already in memory (no second gather).
+    """
+    chunk = phases.fit(picked, context=context, **options)
+    if anchor:
+        chunk["mismatch"] = highlight_mismatch(picked["obs"], np.nan_to_num(chunk["b"]), picked["lights"],
+                                               valid=picked["valid"])
+    return chunk
+
+
+def allocate_maps(shape, n_params):
+    """Zeroed result maps for an (H, W) image and methods with ``n_params`` parameters."""
+    h, w = shape
+    return {"normals": np.zeros((h, w, 3), np.float32), "status": np.zeros((h, w), np.uint8),
+            "albedo": np.zeros((h, w), np.float32), "params": np.zeros((h, w, n_params), np.float32),
+            "residual": np.zeros((h, w), np.float32), "used": np.zeros((h, w), np.uint16)}
+
+
+def scatter_chunk(maps, idx, chunk):
+    """Write a solved chunk (flat pixel indices ``idx``) into :func:`allocate_maps`' maps."""
+    rows, cols = np.unravel_index(idx, maps["status"].shape)
+    b = chunk["b"]
+    albedo = np.linalg.norm(b, axis=1)
+    ok = np.isfinite(b).all(axis=1) & (albedo > 0) & (chunk["status"] != STATUS["too_few"]) \
+        & (chunk["status"] != STATUS["shadowed"])
+    normals = np.where(ok[:, None], b / np.where(ok, albedo, 1.0)[:, None], 0.0)
+    maps["normals"][rows, cols] = normals
+    maps["albedo"][rows, cols] = np.where(ok, albedo, 0.0)
+    maps["status"][rows, cols] = chunk["status"]
+    maps["params"][rows, cols] = np.where(ok[:, None], np.nan_to_num(chunk["params"]), 0.0)
+    used = np.maximum(chunk["used"], 1)
+    rms = np.sqrt(np.maximum(chunk["rss"], 0) / used) / np.where(ok, albedo, 1.0)
+    maps["residual"][rows, cols] = np.where(ok, np.nan_to_num(rms), 0.0)
+    maps["used"][rows, cols] = chunk["used"]
+
+
+def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_size=CHUNK_SIZE, workers=None,
+               progress=None):
+    """One estimation over every chunk of ``pixels``.
+
+    Parameters
+    ----------
+    solver
+        A method of :data:`pipeline.photometric.methods.METHODS`.
+    gather : callable
+        :func:`gatherer`'s function for the image.
+    pixels : ndarray (P,) int
+        Flat indices of the pixels to solve, in row-major order.
+    shape : (H, W)
+    options : dict
+        The method's options (after :func:`pipeline.photometric.selection.resolve_selection`).
+    anchor : bool
+        Also measure the specular-peak mismatches.
+    chunk_size, workers, progress
+        Pixels per chunk; threads (default: the cores); ``progress(n)`` after each chunk.
+
+    Returns
+    -------
+    maps : dict
+        :func:`allocate_maps`' maps, filled.
+    shared : dict
+        ``shape_paper``, ``shape_check`` and ``select`` of the method's context (None when absent).
+    mismatch : ndarray (M,)
+        The specular-peak mismatches (empty without ``anchor``).
+    """
+    out = {}
+    mismatch = []
+    lock = threading.Lock()
+    pieces = [pixels[i:i + chunk_size] for i in range(0, len(pixels), chunk_size)]
+    chunks = iter(pieces)
+    phases = phases_of(solver)
+
+    def finish(idx, picked):
+        chunk = solve_chunk(phases, picked, context, options, anchor)
+        with lock:
+            if not out:
+                out.update(allocate_maps(shape, chunk["params"].shape[1]))
+            scatter_chunk(out, idx, chunk)
+            if anchor:
+                mismatch.append(chunk["mismatch"])
+        if progress:
+            progress(len(idx))
+
+    def work():
+        # Chunks are selected ahead while the shared context is being prepared (selection
+        # never waits for it), up to LOOKAHEAD_BYTES of them, then fitted; one worker per core.
+        held = []
+        while True:
+            with lock:
+                idx = next(chunks, None)
+            if idx is None:
+                break
+            held.append((idx, phases.select(*gather(idx), context=context, **options)))
+            if context.ready() or sum(p["obs"].nbytes for _, p in held) >= LOOKAHEAD_BYTES:
+                for item in held:
+                    finish(*item)
+                held.clear()
+        for item in held:
+            finish(*item)
+
+    # numpy releases the GIL in its array loops, so chunks overlap on several cores.
+    n_workers = max(1, min(workers or os.cpu_count() or 1, len(pieces)))
+    # One BLAS thread per worker, even with one worker: the products here are thin
+    # ((N, K) @ (K, <= 9)), so BLAS threads only spin, which measured several times slower
+    # (and worse still on a busy machine), besides oversubscribing the cores.
+    with threadpool_limits(1), ThreadPoolExecutor(n_workers) as pool:
+        # Submitted first, so a worker takes it before any chunk; the other workers select
+        # chunks meanwhile.
+        context = Context(pool.submit(solver.prepare, gather, pixels, **options)
+                          if hasattr(solver, "prepare") else None)
+        for future in [pool.submit(work) for _ in range(n_workers)]:
+            future.result()
+    shared = {key: context.get(key) for key in ("shape_paper", "shape_check", "select")}
+    return out, shared, (np.concatenate(mismatch) if mismatch else np.zeros(0))

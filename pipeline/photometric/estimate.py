@@ -1,0 +1,268 @@
+"""Photometric stereo's dispatcher: surface normals from images under known lights.
+
+>>> result = estimate_normals(images, lights, mask=None, method="biquadratic")
+
+:func:`estimate_normals` checks its inputs, turns the options into a :class:`SolvePlan`
+(:func:`plan_solve`: the method from :data:`pipeline.photometric.methods.METHODS`, the
+observation selection from the light geometry, whether to anchor the lights on specular
+peaks), runs the chunk engine (:func:`pipeline.photometric.engine.run_chunks`) once, or up to
+three times when the specular anchor corrects the lights (:mod:`pipeline.photometric.anchor`),
+and returns a :class:`PhotometricResult`. The tiled stage (:mod:`pipeline.photometric.tiles`)
+makes the same plan and the same result from its tiles.
+"""
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from .anchor import anchor_scale, anchor_wanted, first_verdict
+from .engine import CHUNK_SIZE, gatherer, run_chunks
+from .methods import get_method
+from .near_lights import PointLights
+from .selection import resolve_selection
+
+__all__ = ["estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_lights", "result_from_maps"]
+
+
+@dataclass
+class PhotometricResult:
+    """Output of :func:`estimate_normals`.
+
+    Attributes
+    ----------
+    normals : ndarray (H, W, 3) float32
+        Unit normals, camera frame; zero outside the mask and where status says no estimate.
+    mask : ndarray (H, W) bool
+        Pixels that were processed.
+    status : ndarray (H, W) uint8
+        Codes of :data:`pipeline.photometric.STATUS` (ok, shadowed, too_few, not_converged,
+        lambert_fallback).
+    albedo : ndarray (H, W) float32
+        Diffuse scale (|b|), in units of the input intensities.
+    params : ndarray (H, W, P) float32
+        Reflectance parameters per pixel (biquadratic: A..I of Eq. 2, relative to albedo).
+    residual : ndarray (H, W) float32
+        Root-mean-square residual over the used observations, relative to the albedo.
+    used : ndarray (H, W) uint16
+        Number of observations used per pixel.
+    """
+
+    normals: np.ndarray
+    mask: np.ndarray
+    status: np.ndarray
+    albedo: np.ndarray
+    params: np.ndarray
+    residual: np.ndarray
+    used: np.ndarray
+    method: str = ""
+    options: dict = field(default_factory=dict)
+    seconds: float = 0.0
+    shared_shape: np.ndarray = None
+
+
+@dataclass
+class SolvePlan:
+    """What an estimation runs, decided once from the method, the lights and the options.
+
+    Attributes
+    ----------
+    method : str
+        The method's name; ``solver`` the registered method itself.
+    lights : ndarray (K, 3) or (K, H, W, 3)
+        Unit directions toward the lights, camera frame (for near lights: their central
+        directions, which the selection rule and the summaries use).
+    near : PointLights or None
+        Near point lights, whose per-pixel directions the engine computes chunk by chunk.
+    options : dict
+        The method's options after :func:`pipeline.photometric.selection.resolve_selection`.
+    anchor : bool
+        Whether to anchor the lights on specular peaks; ``insist`` whether the caller asked for
+        it (``specular_anchor=True``), which also corrects after the darkest-fraction fallback.
+    """
+
+    method: str
+    solver: object
+    lights: np.ndarray
+    near: PointLights = None
+    options: dict = field(default_factory=dict)
+    anchor: bool = False
+    insist: bool = False
+
+
+def check_lights(lights, count, shape):
+    """Validated lights for ``count`` images of ``shape`` (H, W): unit directions or PointLights.
+
+    Raises InputError for a count or shape that does not match, a zero or non-finite direction,
+    or lights of rank < 3 (coplanar: the normals are not determined).
+    """
+    if count < 3:
+        raise InputError(f"photometric stereo needs at least 3 lights, got {count}")
+    if isinstance(lights, PointLights):
+        if len(lights) != count:
+            raise InputError(f"{len(lights)} light positions for {count} images")
+        if lights.shape != tuple(shape):
+            raise InputError(f"near lights are for images {lights.shape}, the images are {tuple(shape)}")
+        _check_rank(lights.central_directions)
+        return lights
+    lights = np.asarray(lights, dtype=float)
+    if lights.shape[0] != count:
+        raise InputError(f"{lights.shape[0]} light directions for {count} images")
+    if lights.shape not in ((count, 3), (count, *shape, 3)):
+        raise InputError(f"lights must be (K, 3) or (K, H, W, 3), got {lights.shape} for {count} images "
+                         f"of {tuple(shape)}")
+    finite = np.isfinite(lights).reshape(count, -1).all(axis=1)
+    if not finite.all():
+        raise InputError(f"light {int(np.argmin(finite))} has a non-finite direction")
+    norms = np.linalg.norm(lights, axis=-1).reshape(count, -1)
+    if (norms < 1e-9).any():
+        raise InputError(f"light {int(np.argmax((norms < 1e-9).any(axis=1)))} has a zero direction vector")
+    lights = lights / np.linalg.norm(lights, axis=-1, keepdims=True)
+    _check_rank(lights if lights.ndim == 2 else lights.reshape(count, -1, 3).mean(axis=1))
+    return lights
+
+
+def _check_rank(shared):
+    if np.linalg.matrix_rank(shared, tol=1e-6) < 3:
+        raise InputError("light directions have rank < 3 (coplanar lights): normals are not determined")
+
+
+def _check_images(images, mask, valid):
+    images = np.asarray(images)
+    if images.ndim != 3:
+        raise InputError(f"images must be a (K, H, W) stack of grey linear images, got shape {images.shape}")
+    k, height, width = images.shape
+    if k < 3:
+        raise InputError(f"photometric stereo needs at least 3 images, got {k}")
+    if mask is None:
+        # Image by image: images > 0 at once would be a (K, H, W) temporary.
+        mask = np.zeros((height, width), bool)
+        for image in images:
+            mask |= image > 0
+    mask = np.asarray(mask, dtype=bool)
+    if mask.shape != (height, width):
+        raise InputError(f"mask shape {mask.shape} does not match the images' {(height, width)}")
+    if not mask.any():
+        raise InputError("the mask has no pixels")
+    if valid is not None:
+        valid = np.asarray(valid, dtype=bool)
+        if valid.shape != images.shape:
+            raise InputError(f"valid shape {valid.shape} does not match the images' {images.shape}")
+    # One image at a time: images[:, mask] would copy the whole masked stack (peak memory).
+    for i in range(k) if images.dtype.kind == "f" else ():
+        if not np.isfinite(images[i][mask]).all():
+            raise InputError(f"image {i} has non-finite pixel values inside the mask")
+    return images, mask, valid
+
+
+def plan_solve(method, lights, options):
+    """The :class:`SolvePlan` for ``method`` with checked ``lights`` (see :func:`check_lights`)."""
+    solver = get_method(method)
+    near = lights if isinstance(lights, PointLights) else None
+    directions = near.central_directions if near is not None else lights
+    options = resolve_selection(directions, options)
+    specular_anchor = options.pop("specular_anchor", "auto")
+    anchor = anchor_wanted(method, specular_anchor, options, directions, near)
+    return SolvePlan(method, solver, directions, near, options, anchor, specular_anchor is True)
+
+
+def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=None, chunk_size=CHUNK_SIZE,
+                     workers=None, progress=None, **options):
+    """Estimate surface normals per pixel.
+
+    Parameters
+    ----------
+    images : ndarray (K, H, W)
+        Linear grey images, light intensities divided out.
+    lights : ndarray (K, 3) or (K, H, W, 3), or PointLights
+        Unit directions toward the lights, camera frame (per pixel for near lights), or near
+        point lights (:class:`pipeline.photometric.PointLights`), whose per-pixel directions
+        and inverse-square falloff are computed chunk by chunk (the falloff is divided out).
+    mask : ndarray (H, W) bool, optional
+        Pixels to process; default: pixels lit in some image.
+    method : str
+        A name in :data:`pipeline.photometric.METHODS` (which holds every registered
+        reflectance model too).
+    valid : ndarray (K, H, W) bool, optional
+        False for observations that must not be used (saturated pixels).
+    chunk_size : int
+        Pixels processed at once (memory per chunk is about chunk_size x K x 200 bytes).
+    workers : int, optional
+        Threads working on chunks at once (default: the number of cores).
+    progress : callable, optional
+        Called with the number of pixels finished after each chunk.
+    **options
+        Method options (see each method, e.g. :func:`pipeline.photometric.biquadratic_method`),
+        and ``specular_anchor`` ('auto', True or False): correct the lights' polar angles where
+        sharp specular peaks show the normals' slant to be off (:mod:`pipeline.photometric.anchor`;
+        'auto' = the biquadratic method under a narrow light cone). Its outcome is in the
+        result's ``options`` (``cone_scale``, 1.0 when unchanged, ``anchor``, ``mismatch_deg``,
+        ``highlight_pixels``); a corrected run costs up to three estimations.
+
+    Returns
+    -------
+    PhotometricResult
+    """
+    start = time.perf_counter()
+    images, mask, valid = _check_images(images, mask, valid)
+    plan = plan_solve(method, check_lights(lights, images.shape[0], images.shape[1:]), options)
+    k = images.shape[0]
+    flat_images, flat_valid = images.reshape(k, -1), None if valid is None else valid.reshape(k, -1)
+    pixels = np.flatnonzero(mask)
+    runs = []
+
+    def solve(run_lights):
+        # Progress is reported for the first run only: its total is the mask's pixel count.
+        runs.append(run_lights)
+        gather = gatherer(flat_images, flat_valid, plan.near if plan.near is not None else run_lights)
+        out, shared, mismatch = run_chunks(plan.solver, gather, pixels, mask.shape, plan.options, anchor=plan.anchor,
+                                           chunk_size=chunk_size, workers=workers,
+                                           progress=progress if len(runs) == 1 else None)
+        return (out, shared), mismatch
+
+    options = dict(plan.options)
+    if plan.anchor:
+        (out, shared), info = _anchored(solve, plan.lights, insist=plan.insist)
+        options.update(info)
+    else:
+        out, shared = solve(plan.lights)[0]
+    return result_from_maps(out, mask, method, options, shared, seconds=time.perf_counter() - start)
+
+
+def result_from_maps(maps, mask, method, options, shared, seconds=0.0):
+    """The :class:`PhotometricResult` of filled maps and a method's shared context.
+
+    ``shared`` holds the context's ``shape_paper``, ``shape_check`` and ``select`` (the
+    darkest-fraction fallback's options): the check is reported in ``options["shape_check"]``,
+    and after a fallback the options say what ran.
+    """
+    options = dict(options)
+    if shared.get("shape_check") is not None:
+        options["shape_check"] = shared["shape_check"]
+    if shared.get("select"):  # the darkest-fraction fallback ran: report the options that did
+        options.update(shared["select"], shape_prior=0.0)
+    return PhotometricResult(
+        normals=maps["normals"], mask=mask, status=maps["status"], albedo=maps["albedo"], params=maps["params"],
+        residual=maps["residual"], used=maps["used"], method=method, options=options, seconds=seconds,
+        shared_shape=shared.get("shape_paper"))
+
+
+def _anchored(solve, lights, insist=False):
+    """``anchor_scale`` on ``solve``, except after the darkest-fraction fallback.
+
+    The fallback (:meth:`pipeline.photometric.biquadratic.Biquadratic.prepare`) is known only
+    after the first solve. Its normals are then measured and reported (as the tiled stage
+    reports them, from the same first verdict) but not corrected unless the caller insists
+    (``specular_anchor=True``): the one measured false correction of the anchor came from a
+    darkest-rule solve, and an object that failed the one-material check is where a local
+    specular bias is likeliest to pass for a global one.
+    """
+    first = solve(lights)
+    if first[0][1]["select"] and not insist:
+        info = first_verdict(first[1])
+        if info["anchor"] == "to correct":
+            info["anchor"] = "not corrected: darkest fallback"
+        return first[0], info
+    replay = [first]
+    return anchor_scale(lambda run_lights: replay.pop() if replay else solve(run_lights), lights)

@@ -1,0 +1,115 @@
+"""Photometric-stereo methods by name: the registry, the status codes, and the simple methods.
+
+A method solves one chunk of pixels: ``method(obs (N, K), valid (N, K) or None, lights (K, 3)
+or (N, K, 3), context=None, **options)`` returns a dict of ``b`` (N, 3) albedo-scaled normals
+(camera frame), ``status`` (N,) codes of :data:`STATUS`, ``used`` (N,) observation counts,
+``rss`` (N,) residual sums of squares and ``params`` (N, P) reflectance parameters. A method
+may split that into ``select`` (which never waits for a shared context) and ``fit`` phases
+and fit a shared ``prepare``-d context once per image (the biquadratic method does,
+:mod:`pipeline.photometric.biquadratic`); the chunk engine (:mod:`pipeline.photometric.engine`)
+runs either kind.
+
+Registered here: ``lambert`` (every valid observation), ``lambert-low`` (the selected ones)
+and, for every reflectance model of :mod:`pipeline.reflectance` that is not a method of its
+own, the paper's alternation with that model (fix n, fit the model; fix rho, solve n).
+"""
+
+import numpy as np
+
+from ..registry import Registry
+from ..reflectance import MODELS, Geometry, get_model
+from .alternation import unit
+from .lambert import lambert_weighted
+from .selection import select_observations
+
+__all__ = ["METHODS", "get_method", "STATUS", "STATUS_NAMES", "MIN_OBS", "base_status", "shading",
+           "lambert_method", "lambert_low_method", "ModelAlternation", "register_model_methods"]
+
+STATUS = {"background": 0, "ok": 1, "shadowed": 2, "too_few": 3, "not_converged": 4, "lambert_fallback": 5}
+STATUS_NAMES = {code: name for name, code in STATUS.items()}
+MIN_OBS = 3
+
+#: Photometric-stereo methods by name (``psrig normals --method NAME``)
+METHODS = Registry("photometric stereo method")
+
+
+def get_method(name):
+    """The method called ``name``; the error lists every method (:data:`METHODS`)."""
+    return METHODS[name]
+
+
+def base_status(weights, base):
+    """Status codes (N,) and observation counts (N,) from selected and non-shadowed weights."""
+    used = weights.sum(axis=1)
+    status = np.full(len(weights), STATUS["ok"], np.uint8)
+    status[used < MIN_OBS] = STATUS["too_few"]
+    status[base.sum(axis=1) == 0] = STATUS["shadowed"]
+    return status, used
+
+
+def shading(b, lights):
+    """Lambertian shading b . l (N, K) for lights (K, 3) or (N, K, 3)."""
+    return b @ lights.T if lights.ndim == 2 else np.einsum("ni,nki->nk", b, lights)
+
+
+@METHODS.register("lambert")
+def lambert_method(obs, valid, lights, context=None, **_):
+    """Lambertian least squares on every valid observation."""
+    weights = np.ones_like(obs) if valid is None else valid.astype(obs.dtype)
+    b = lambert_weighted(obs, lights, weights)
+    status, used = base_status(weights, weights)
+    rss = np.sum(weights * (obs - shading(b, lights)) ** 2, axis=1)
+    return {"b": b, "status": status, "used": used, "rss": rss, "params": np.linalg.norm(b, axis=1)[:, None]}
+
+
+@METHODS.register("lambert-low")
+def lambert_low_method(obs, valid, lights, context=None, **options):
+    """Lambertian least squares on the selected (low-frequency) observations."""
+    base, weights, b = select_observations(obs, valid, lights, **options)
+    status, used = base_status(weights, base)
+    rss = np.sum(weights * (obs - shading(b, lights)) ** 2, axis=1)
+    return {"b": b, "status": status, "used": used, "rss": rss, "params": np.linalg.norm(b, axis=1)[:, None]}
+
+
+class ModelAlternation:
+    """The paper's alternation with a reflectance model of :mod:`pipeline.reflectance`.
+
+    Fix n and fit the model's parameters; fix rho and solve n linearly; stop when every
+    pixel's residual changes by at most ``tol`` x its weighted sum of squares, or after
+    ``max_iter`` rounds. The model is looked up when the method first runs.
+    """
+
+    def __init__(self, model_name):
+        self.model_name = model_name
+
+    def __call__(self, obs, valid, lights, context=None, max_iter=20, tol=1e-7, **options):
+        model = get_model(self.model_name)
+        base, weights, b = select_observations(obs, valid, lights, **options)
+        status, used = base_status(weights, base)
+        n = unit(b)
+        params = None
+        rss = np.zeros(len(obs))
+        prev = None
+        for _ in range(max_iter):
+            geom = Geometry.from_vectors(n, lights)
+            params = model.fit(geom, obs, shading=np.maximum(geom.nl, 0.0), weights=weights)
+            rho = model.evaluate(params, geom)
+            b = lambert_weighted(obs, lights, weights, factor=rho)
+            n = unit(b)
+            geom = Geometry.from_vectors(n, lights)
+            rss = np.sum(weights * (obs - model.evaluate(params, geom) * np.maximum(geom.nl, 0)) ** 2, axis=1)
+            if prev is not None and np.all(np.abs(prev - rss) <= tol * (np.sum(weights * obs**2, axis=1) + 1e-300)):
+                break
+            prev = rss
+        # b's scale is arbitrary here (rho carries the albedo); report |b| as 1 x mean rho.
+        albedo = np.nanmean(np.where(weights > 0, model.evaluate(params, Geometry.from_vectors(n, lights)), np.nan),
+                            axis=1)
+        return {"b": n * np.nan_to_num(albedo, nan=1.0)[:, None], "status": status, "used": used, "rss": rss,
+                "params": np.asarray(params).reshape(len(obs), -1)}
+
+
+def register_model_methods():
+    """Register :class:`ModelAlternation` for every reflectance model that names no method yet."""
+    for name in MODELS:
+        if name not in METHODS:
+            METHODS.register(name, ModelAlternation(name))

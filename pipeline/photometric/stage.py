@@ -1,0 +1,281 @@
+"""The ``normals`` stage: linear object frames + calibrated lights -> normal maps in ``normals/``.
+
+Reads ``linear/<frame>.exr`` and ``linear/<frame>_sat.png`` (decode stage) and
+``calibration/lights.yaml`` (calibrate stage or an importer); writes ``normals.exr``,
+``normals.png``, ``mask.png``, ``albedo.exr``, ``brdf.exr``, ``residual.exr``, ``status.png``
+(codes of :data:`pipeline.photometric.STATUS`) and ``status_vis.png``; records the stage.
+
+The serial stage (:func:`normals_session`) and the tiled one (:mod:`pipeline.photometric.tiles`)
+are the same three steps: :func:`begin_normals` (inputs, staleness, lights), a solve, and
+:func:`record_normals` (outputs and the stage record).
+"""
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import StageError
+from ..imageio import read_image, read_mask, write_image, write_mask, write_normal_png
+from ..lightsio import read_lights_yaml
+from ..paths import LIGHTS
+from ..progress import progress as progress_bar
+from ..yamlio import plain
+from .estimate import estimate_normals
+from .methods import STATUS
+from .near_depth import refine_near_depth
+from .near_lights import PointLights
+
+__all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "load_object_stack", "object_mask",
+           "light_model", "stage_params", "model_record", "STAGE", "LIGHT_MODELS", "PAPER_NAMES", "STATUS_COLOURS"]
+
+STAGE = "normals"
+LIGHT_MODELS = ("auto", "directional", "near")
+# Eq. 2's parameters with their monomials; names sort in order and avoid the bare R/G/B/A that
+# EXR readers treat as colour channels.
+PAPER_NAMES = ("brdf.A_x2y2", "brdf.B_x2y", "brdf.C_x2", "brdf.D_xy2", "brdf.E_xy", "brdf.F_x",
+               "brdf.G_y2", "brdf.H_y", "brdf.I_1")
+#: status_vis.png colour of each status code (RGB)
+STATUS_COLOURS = np.array([[0, 0, 0], [60, 170, 60], [40, 40, 160], [200, 160, 0], [220, 40, 40],
+                           [150, 80, 200]], np.uint8)
+#: what :mod:`pipeline.photometric.anchor` reports in the result's options, kept in the stage record
+ANCHOR_KEYS = ("cone_scale", "anchor", "mismatch_deg", "highlight_pixels", "probe_mismatch_deg",
+               "final_mismatch_deg")
+
+
+@dataclass
+class NormalsRun:
+    """One run of the normals stage on a session: what the serial and the tiled stage share.
+
+    Attributes
+    ----------
+    method : str
+    options : dict
+        The options given to the solver (None values dropped).
+    params, inputs : dict
+        The stage record's parameters and input hashes.
+    frames : list of dict
+        The object frames used (their light not flagged), in light order.
+    lights : LightSet
+        The session's lights (all of them; ``frames`` say which are used).
+    model : str
+        'near' or 'directional' (:func:`light_model`).
+    near_depth : bool
+        Near lights at the depth a first solve integrates to (:mod:`pipeline.photometric.near_depth`).
+    mask_rel : str or None
+        The session's object mask, when it has one.
+    started : float
+        ``time.time()`` when the run began (the record's seconds).
+    """
+
+    method: str
+    options: dict
+    params: dict
+    inputs: dict
+    frames: list
+    lights: object
+    model: str
+    near_depth: bool = True
+    mask_rel: str = None
+    started: float = field(default_factory=time.time)
+
+    def solver_lights(self, shape):
+        """The used lights as the solver takes them: directions (K, 3) or PointLights for ``shape``."""
+        chosen = [f["light"] for f in self.frames]
+        if self.model == "near":
+            return PointLights(self.lights.positions[chosen], shape)
+        return self.lights.directions[chosen]
+
+    def extra(self):
+        """Stage-record entries of the lights used."""
+        return {"lights_used": len(self.frames), "lights_left_out": sorted(int(k) for k in self.lights.flags),
+                "light_model": self.model}
+
+
+def _object_frames(session):
+    frames = sorted(session.frames("object"), key=lambda f: f["light"])
+    if not frames:
+        raise StageError(f"{session.root}: normals: the session has no object frames")
+    lights = [f["light"] for f in frames]
+    if len(set(lights)) != len(lights):
+        raise StageError(f"{session.root}: normals: several object frames share a light index")
+    return frames
+
+
+def _inputs(session, frames, mask_rel):
+    rels = [LIGHTS] + ([mask_rel] if mask_rel else [])
+    for frame in frames:
+        for path in (session.linear_path(frame), session.saturation_path(frame)):
+            if not path.is_file():
+                raise StageError(f"{path}: normals: decoded frame of {frame['id']!r} is missing "
+                                 "(run `psrig decode` first)")
+            rels.append(session.rel(path))
+    if not session.path(LIGHTS).is_file():
+        raise StageError(f"{session.path(LIGHTS)}: normals: no lights (run `psrig calibrate` or import lights)")
+    return session.hash_inputs(rels)
+
+
+def light_model(lights, requested="auto"):
+    """'near' or 'directional': how the normals stage uses ``lights`` (a LightSet).
+
+    ``auto`` uses positions when lights.yaml has them and its ``light_model`` key (written by
+    the calibration, which decides from the triangulation) does not say 'directional'.
+    """
+    if requested not in LIGHT_MODELS:
+        raise StageError(f"normals: unknown light model {requested!r}; known: {', '.join(LIGHT_MODELS)}")
+    if requested == "directional":
+        return "directional"
+    if lights.positions is None:
+        if requested == "near":
+            raise StageError(f"{LIGHTS}: light model 'near' asked for, but the lights have no positions")
+        return "directional"
+    if requested == "near" or lights.extra.get("light_model", "near") != "directional":
+        return "near"
+    return "directional"
+
+
+def stage_params(method, lights_model, options, near_depth=True):
+    """The stage record's parameters: method, the options given (not None), the light model
+    when not 'auto' and ``near_depth`` when off (so records of earlier versions stay current)."""
+    params = {"method": method, **{k: v for k, v in sorted(options.items()) if v is not None}}
+    if lights_model != "auto":
+        params["lights_model"] = lights_model
+    if not near_depth:
+        params["near_depth"] = False
+    return params
+
+
+def _read_stage_lights(session, frames):
+    """The session's lights and the object frames whose light is not flagged."""
+    lights = read_lights_yaml(session.path(LIGHTS))
+    top = max(f["light"] for f in frames)
+    if top >= len(lights):
+        raise StageError(f"{session.path(LIGHTS)}: {len(lights)} lights, but frame light index {top} is used")
+    return lights, [f for f in frames if f["light"] not in lights.flags]
+
+
+def begin_normals(session, *, method="biquadratic", force=False, lights_model="auto", near_depth=True, **options):
+    """Start a normals run: its inputs, whether it is up to date, and the lights it uses.
+
+    Returns a :class:`NormalsRun`, or None when the stage record still matches (and not
+    ``force``). Raises StageError for missing frames or lights.
+    """
+    frames = _object_frames(session)
+    mask_rel = session.manifest["lights"].get("object_mask")
+    params = stage_params(method, lights_model, options, near_depth)
+    inputs = _inputs(session, frames, mask_rel)
+    if not force and session.stage_is_current(STAGE, params, inputs):
+        return None
+    started = time.time()
+    lights, used = _read_stage_lights(session, frames)
+    given = {k: v for k, v in options.items() if v is not None}
+    return NormalsRun(method, given, params, inputs, used, lights, light_model(lights, lights_model), near_depth,
+                      mask_rel, started)
+
+
+def load_object_stack(session, frames, lights):
+    """Grey linear stack (K, H, W) with intensities divided out, and valid (K, H, W) bool."""
+    images, valid = [], []
+    for frame in frames:
+        linear = read_image(session.linear_path(frame))
+        gain = lights.intensities[frame["light"]]
+        gain = gain if gain.size == linear.shape[2] else np.full(linear.shape[2], gain.mean())
+        if (gain <= 0).any():
+            raise StageError(f"{session.path(LIGHTS)}: light {frame['light']} has a non-positive intensity")
+        images.append((linear / gain.astype(np.float32)).mean(axis=2))
+        valid.append(~read_mask(session.saturation_path(frame)))
+        if images[-1].shape != images[0].shape:
+            raise StageError(f"{session.linear_path(frame)}: size {images[-1].shape} differs from "
+                             f"{session.linear_path(frames[0])}'s {images[0].shape}")
+    return np.stack(images), np.stack(valid)
+
+
+def object_mask(session, run, images):
+    """The session's object mask, or pixels whose brightest observation in ``images`` (K, H, W)
+    exceeds 5 % of the object's bright level."""
+    if run.mask_rel:
+        mask = read_mask(session.path(run.mask_rel))
+        if mask.shape != images.shape[1:]:
+            raise StageError(f"{session.path(run.mask_rel)}: mask size {mask.shape} differs from the frames' "
+                             f"{images.shape[1:]}")
+        return mask
+    peak = images.max(axis=0)
+    return peak > 0.05 * np.percentile(peak, 99.5)
+
+
+def normals_session(session, *, method="biquadratic", force=False, show_progress=True,
+                    lights_model="auto", near_depth=True, **options):
+    """Run the normals stage on a session; returns the stage record (None when up to date).
+
+    ``options`` go to :func:`pipeline.photometric.estimate_normals` (t_low, t_shadow, reject_k,
+    shape_prior, ...). Lights flagged in ``lights.yaml`` are left out and listed in the record.
+    ``lights_model`` is 'auto', 'directional' or 'near' (see :func:`light_model`): near lights
+    give per-pixel directions and inverse-square falloff from the calibrated positions, at the
+    depth a first solve's normals integrate to when ``near_depth`` (default; see
+    :mod:`pipeline.photometric.near_depth`), else on the plane of the calibration spheres.
+    """
+    run = begin_normals(session, method=method, force=force, lights_model=lights_model, near_depth=near_depth,
+                        **options)
+    if run is None:
+        return None
+    images, valid = load_object_stack(session, run.frames, run.lights)
+    mask = object_mask(session, run, images)
+    passes = 1 if run.model == "near" and near_depth else 0
+    with progress_bar(total=int(mask.sum()) * (1 + passes), desc="normals", unit="px",
+                      disable=not show_progress) as bar:
+        def solve(directions, pixels):
+            return estimate_normals(images, directions, pixels, method=method, valid=valid,
+                                    progress=bar.update if pixels is mask else None, **run.options)
+
+        lights = run.solver_lights(images.shape[1:])
+        if run.model == "near":
+            result, depth = refine_near_depth(solve, lights, mask, passes=passes)
+        else:
+            result, depth = solve(lights, mask), None
+    return record_normals(session, run, result, near_depth=depth)
+
+
+def record_normals(session, run, result, near_depth=None):
+    """Write ``normals/`` from a :class:`PhotometricResult` and record the stage; returns the record.
+
+    ``near_depth`` is :func:`pipeline.photometric.near_depth.refine_near_depth`'s report, kept
+    when it ran a pass.
+    """
+    outputs = _write_outputs(session, result)
+    counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
+    extra = {"pixels": int(result.mask.sum()), "status_counts": counts, **run.extra()}
+    if near_depth is not None and near_depth["passes"]:
+        extra["near_depth"] = near_depth
+    extra.update(model_record(result.shared_shape, result.options.get("shape_check"), result.options))
+    return session.record_stage(STAGE, run.params, run.inputs, outputs, seconds=time.time() - run.started,
+                                **extra)
+
+
+def _write_outputs(session, result):
+    mask = result.mask
+    names = {"normals.exr": result.normals, "albedo.exr": result.albedo, "residual.exr": result.residual}
+    for name, array in names.items():
+        write_image(session.path(f"normals/{name}"), array.astype(np.float32))
+    channel_names = PAPER_NAMES if result.params.shape[2] == 9 else None
+    write_image(session.path("normals/brdf.exr"), result.params, channel_names=channel_names)
+    write_normal_png(session.path("normals/normals.png"), result.normals, mask & (result.status != 0))
+    write_mask(session.path("normals/mask.png"), mask)
+    write_image(session.path("normals/status.png"), result.status, bits=8)
+    write_image(session.path("normals/status_vis.png"), STATUS_COLOURS[np.minimum(result.status, 5)], bits=8)
+    return [f"normals/{n}" for n in ("normals.exr", "albedo.exr", "residual.exr", "brdf.exr", "normals.png",
+                                      "mask.png", "status.png", "status_vis.png")]
+
+
+def model_record(shared_shape, shape_check, anchor):
+    """Stage-record entries of the fit: the shared shape, its single-material check and the
+    specular anchor's outcome (the keys of :data:`ANCHOR_KEYS` found in ``anchor``), each only
+    when present."""
+    extra = {}
+    if shared_shape is not None:
+        extra["shared_shape"] = [round(float(v), 6) for v in shared_shape]
+    if shape_check is not None:
+        extra["shared_shape_check"] = plain(shape_check)
+    found = {k: anchor[k] for k in ANCHOR_KEYS if k in (anchor or {})}
+    if found:
+        extra["specular_anchor"] = plain(found)
+    return extra

@@ -1,0 +1,266 @@
+"""The normals stage of one session split into pixel tiles, for :mod:`pipeline.cluster`.
+
+The same stage as :func:`pipeline.photometric.stage.normals_session`, on the same engine: it begins
+and records through :func:`pipeline.photometric.stage.begin_normals` and
+:func:`pipeline.photometric.stage.record_normals`, plans the solve with
+:func:`pipeline.photometric.estimate.plan_solve` and solves chunks with
+:func:`pipeline.photometric.engine.solve_chunk`.
+
+Three steps, each a separate (Dask) task; only the first and the last touch ``session.yaml``:
+
+1. :func:`plan_normals` writes a scratch stack ``normals/.tiles/stack.npy`` (K, H, W) float32,
+   ``valid.npy`` (K, H, W) bool and ``mask.npy`` (H, W) bool, frame by frame, and fits the
+   method's shared context (the biquadratic shared shape) ONCE on the whole mask, exactly as
+   :func:`pipeline.photometric.estimate_normals` does.
+2. :func:`run_tile` memory-maps the scratch stack, reads only the rows its pixels lie in,
+   solves them with that same context and writes ``normals/.tiles/tile-<p0>.npz`` atomically. A
+   rerun (a worker died, Dask retried) finds the finished file and returns at once, or rewrites
+   the same bytes.
+3. :func:`assemble_normals` scatters the tiles into full maps, writes ``normals/`` exactly as
+   :func:`pipeline.photometric.stage.normals_session` does, records the stage and removes the scratch.
+
+A tile is a run of consecutive object pixels (in row-major order) made of whole solver chunks
+(:data:`pipeline.photometric.engine.CHUNK_SIZE`), so every chunk the solver
+sees holds the same pixels as in a serial run: the tiled outputs are byte-identical to the
+serial stage's even where the solver's last bits depend on the chunk it is given.
+"""
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from ..atomic import atomic_path
+from ..errors import InputError, StageError
+from ..paths import LIGHTS
+from ..session import Session
+from .anchor import first_verdict
+from .engine import CHUNK_SIZE, allocate_maps, gatherer, phases_of, prepare_context, scatter_chunk, solve_chunk
+from .estimate import check_lights, plan_solve, result_from_maps
+from .stage import NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
+
+__all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
+           "tile_context", "SCRATCH", "WHOLE_IMAGE"]
+
+SCRATCH = "normals/.tiles"
+#: :func:`assemble_normals`' answer when the lights need the specular-peak correction
+#: (:mod:`pipeline.photometric.anchor`): one global scale, applied to every pixel, that only a solve of
+#: the whole image can make; the caller then runs the serial normals stage. :func:`plan_normals`
+#: answers it before any tile for near lights placed at an integrated depth, for the same reason.
+WHOLE_IMAGE = "whole-image"
+
+
+@dataclass
+class TilePlan:
+    """Everything a tile task needs; small enough to ship to every worker.
+
+    ``solve`` is the :class:`pipeline.photometric.estimate.SolvePlan` (method, options after
+    the selection policy, lights, whether tiles also measure the specular-peak mismatches);
+    ``context`` the method's shared context; ``tiles`` the :func:`pixel_tiles` of the mask;
+    ``chunk`` the pixels per solver call; ``run`` the stage's :class:`NormalsRun` (None when
+    tiles are solved outside a session's stage, as the cluster benchmark does).
+    """
+
+    root: str
+    solve: object
+    context: dict
+    shape: tuple
+    tiles: list
+    chunk: int = CHUNK_SIZE
+    run: NormalsRun = None
+
+    @property
+    def anchor(self):
+        return self.solve.anchor
+
+    @property
+    def params(self):
+        return self.run.params
+
+    def scratch(self, name=""):
+        return Path(self.root) / SCRATCH / name
+
+
+def pixel_tiles(mask, tile_pixels, chunk):
+    """Tiles of the mask's pixels: [(p0, r0, r1, skip, count), ...].
+
+    A tile holds the ``count`` object pixels numbered p0.. in row-major order (p0 a multiple
+    of ``chunk``; ``count`` about ``tile_pixels`` rounded to whole chunks). They lie in rows
+    [r0, r1), after the first ``skip`` object pixels of those rows.
+    """
+    per_row = np.count_nonzero(mask, axis=1)
+    before = np.concatenate([[0], np.cumsum(per_row)])  # object pixels before each row
+    total, step = int(before[-1]), max(1, int(tile_pixels) // chunk) * chunk
+    tiles = []
+    for p0 in range(0, total, step):
+        count = min(step, total - p0)
+        r0 = int(np.searchsorted(before, p0, side="right")) - 1
+        r1 = int(np.searchsorted(before, p0 + count - 1, side="right"))
+        tiles.append((p0, r0, r1, p0 - int(before[r0]), count))
+    return tiles
+
+
+def write_stack(folder, frames, load, name=str):
+    """Write stack.npy (K, H, W) float32 and valid.npy (K, H, W) bool one frame at a time.
+
+    ``load(frame)`` returns (image (H, W) float32, valid (H, W) bool); ``name(frame)`` names a
+    frame in errors. Both files are written atomically; only one frame is in memory at once.
+    Returns the per-pixel peak (H, W) over the frames.
+    """
+    folder = Path(folder)
+    with atomic_path(folder / "stack.npy") as tmp_stack, atomic_path(folder / "valid.npy") as tmp_valid:
+        stack = valid = peak = None
+        for k, frame in enumerate(frames):
+            image, ok = load(frame)
+            if stack is None:
+                shape = (len(frames),) + image.shape
+                stack = np.lib.format.open_memmap(tmp_stack, mode="w+", dtype=np.float32, shape=shape)
+                valid = np.lib.format.open_memmap(tmp_valid, mode="w+", dtype=bool, shape=shape)
+                peak = image.copy()
+            if image.shape != stack.shape[1:]:
+                raise StageError(f"{name(frame)}: size {image.shape} differs from "
+                                 f"{name(frames[0])}'s {stack.shape[1:]}")
+            stack[k], valid[k] = image, ok
+            np.maximum(peak, image, out=peak)
+        stack.flush()
+        valid.flush()
+        del stack, valid
+    return peak
+
+
+
+def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=CHUNK_SIZE):
+    """Prepare the tiled normals stage; returns a :class:`TilePlan`, None when up to date, or
+    :data:`WHOLE_IMAGE` when the stage must run whole (near lights placed at the integrated
+    depth of a first solve, :mod:`pipeline.photometric.near_depth`).
+
+    ``options`` are the normals stage options (``method``, ``t_low``, ...; None = default);
+    ``chunk`` the pixels per solver call.
+    """
+    options = {k: v for k, v in options.items() if v is not None}
+    run = begin_normals(session, force=force, **options)
+    if run is None:
+        return None
+    folder = session.path(SCRATCH)
+    shutil.rmtree(folder, ignore_errors=True)  # tiles of an older plan must not be reused
+    if run.model == "near" and run.near_depth:
+        return WHOLE_IMAGE
+    folder.mkdir(parents=True)
+    peak = write_stack(folder, run.frames, lambda frame: _load_frame(session, frame, run.lights),
+                       name=session.linear_path)
+    mask = object_mask(session, run, peak[None])
+    if not mask.any():
+        raise InputError(f"{session.root}: normals: the mask has no pixels")
+    with atomic_path(folder / "mask.npy") as tmp:
+        np.save(tmp, mask)
+    try:
+        lights = check_lights(run.solver_lights(mask.shape), len(run.frames), mask.shape)
+    except InputError as exc:
+        raise InputError(f"{session.path(LIGHTS)}: the {len(run.frames)} used lights: {exc}") from None
+    solve = plan_solve(run.method, lights, run.options)
+    return TilePlan(str(session.root), solve, tile_context(folder, mask, solve), mask.shape,
+                    pixel_tiles(mask, tile_pixels, chunk), chunk, run)
+
+
+def _load_frame(session, frame, lights):
+    # the same arithmetic as the serial stage, one frame at a time
+    images, valid = load_object_stack(session, [frame], lights)
+    return images[0], valid[0]
+
+
+def tile_context(folder, mask, solve):
+    """The method's shared context from the whole mask, gathered from the memory-mapped stack."""
+    if not hasattr(solve.solver, "prepare"):
+        return {}
+    stack = np.load(Path(folder) / "stack.npy", mmap_mode="r")
+    valid = np.load(Path(folder) / "valid.npy", mmap_mode="r")
+    k = stack.shape[0]
+    gather = gatherer(stack.reshape(k, -1), valid.reshape(k, -1), _solver_lights(solve))
+    return prepare_context(solve.solver, gather, np.flatnonzero(mask), solve.options)
+
+
+def _solver_lights(solve):
+    return solve.near if solve.near is not None else solve.lights
+
+
+def run_tile(plan, tile, hook=None):
+    """Solve one tile (an item of ``plan.tiles``); returns the tile file's path (str).
+
+    Reads only the tile's rows of the memory-mapped stack. ``hook(plan, tile)``, if given, is
+    called after solving and before writing (tests use it to kill the worker mid-tile).
+    """
+    p0, r0, r1, skip, count = tile
+    target = plan.scratch(f"tile-{p0:010d}.npz")
+    if target.is_file():  # finished by an earlier attempt of this task
+        return str(target)
+    stack = np.load(plan.scratch("stack.npy"), mmap_mode="r")
+    valid = np.load(plan.scratch("valid.npy"), mmap_mode="r")
+    mask = np.load(plan.scratch("mask.npy"), mmap_mode="r")
+    k, width = stack.shape[0], stack.shape[2]
+    gather = gatherer(stack[:, r0:r1].reshape(k, -1), valid[:, r0:r1].reshape(k, -1), _solver_lights(plan.solve),
+                      offset=r0 * width)
+    local = np.flatnonzero(mask[r0:r1])[skip:skip + count]
+    solve = plan.solve
+    phases = phases_of(solve.solver)
+    pieces = []
+    # one BLAS thread: a Dask worker is one core's worth of work
+    with threadpool_limits(1):
+        for start in range(0, len(local), plan.chunk):
+            idx = local[start:start + plan.chunk]
+            picked = phases.select(*_finite(gather(idx), plan, r0, r1), context=plan.context, **solve.options)
+            pieces.append(solve_chunk(phases, picked, plan.context, solve.options, solve.anchor))
+    if hook is not None:
+        hook(plan, tile)
+    keys = ("b", "status", "used", "rss", "params") + (("mismatch",) if solve.anchor else ())
+    arrays = {key: np.concatenate([p[key] for p in pieces]) for key in keys} if pieces else {}
+    with atomic_path(target) as tmp:
+        np.savez(tmp, idx=local + r0 * width, **arrays)
+    return str(target)
+
+
+def _finite(gathered, plan, r0, r1):
+    """``gather``'s result, refused when an observation is not finite (the serial stage checks
+    the whole stack up front; a tile checks what it reads)."""
+    obs = gathered[0]
+    if not np.isfinite(obs).all():
+        bad = int(np.argmin(np.isfinite(obs).all(axis=0)))
+        raise InputError(f"{plan.root}: normals: image {bad} has non-finite pixel values "
+                         f"inside the mask (rows {r0}-{r1 - 1})")
+    return gathered
+
+
+def assemble_normals(plan, tile_paths=None):
+    """Scatter the tiles into full maps, write ``normals/``, record the stage; returns the record.
+
+    Returns :data:`WHOLE_IMAGE` instead (and writes nothing) when the tiles' specular-peak
+    mismatches call for a correction of the lights.
+    """
+    session = Session.open(plan.root)
+    mask = np.load(plan.scratch("mask.npy"))
+    out, mismatch = None, []
+    for tile in plan.tiles:
+        path = plan.scratch(f"tile-{tile[0]:010d}.npz")
+        if not path.is_file():
+            raise StageError(f"{path}: normals: tile result is missing")
+        with np.load(path) as tile:
+            if tile["idx"].size == 0:
+                continue
+            chunk = {key: tile[key] for key in ("b", "status", "used", "rss", "params")}
+            if out is None:
+                out = allocate_maps(mask.shape, chunk["params"].shape[1])
+            scatter_chunk(out, tile["idx"], chunk)
+            if plan.anchor:
+                mismatch.append(tile["mismatch"])
+    options = dict(plan.solve.options)
+    if plan.anchor:
+        verdict = first_verdict(np.concatenate(mismatch) if mismatch else np.zeros(0))
+        if verdict["anchor"] == "to correct":
+            shutil.rmtree(plan.scratch(), ignore_errors=True)
+            return WHOLE_IMAGE
+        options.update(verdict)
+    shared = {key: plan.context.get(key) for key in ("shape_paper", "shape_check", "select")}
+    record = record_normals(session, plan.run, result_from_maps(out, mask, plan.solve.method, options, shared))
+    shutil.rmtree(plan.scratch(), ignore_errors=True)
+    return record

@@ -1,0 +1,112 @@
+"""Specular anchoring of the light cone (pipeline.ps_anchor) through estimate_normals."""
+
+import numpy as np
+import pytest
+
+from pipeline.errors import InputError
+from pipeline.photometric import estimate_normals
+from pipeline.photometric.anchor import highlight_mismatch, scale_cone
+
+from tests.pipeline.photometric.ps_synthetic import angular_error_deg, cook_torrance_images, hemisphere_lights, sphere_normals
+
+NARROW = hemisphere_lights(96, seed=1, min_elevation_deg=48)   # DiLiGenT-like cone
+
+
+def render(true_scale, roughness, ks=0.5, size=96):
+    """A Cook-Torrance sphere lit by NARROW with its polar angles scaled by ``true_scale``."""
+    normals, mask = sphere_normals(size)
+    images = cook_torrance_images(normals, mask, scale_cone(NARROW, true_scale), roughness=roughness, ks=ks,
+                                  noise=0.002)
+    return images, normals, mask
+
+
+def test_scale_cone_scales_polar_angles_only():
+    scaled = scale_cone(NARROW, 1.1)
+    np.testing.assert_allclose(np.linalg.norm(scaled, axis=1), 1.0)
+    np.testing.assert_allclose(np.arccos(scaled[:, 2]), 1.1 * np.arccos(NARROW[:, 2]), atol=1e-12)
+    np.testing.assert_allclose(np.arctan2(scaled[:, 1], scaled[:, 0]), np.arctan2(NARROW[:, 1], NARROW[:, 0]),
+                               atol=1e-12)
+    assert scale_cone(NARROW, 1.0) is not None and np.array_equal(scale_cone(NARROW, 1.0), NARROW)
+
+
+@pytest.mark.parametrize("true_scale", [0.96, 1.05])
+def test_anchor_recovers_a_miscalibrated_cone(true_scale):
+    images, normals, mask = render(true_scale, roughness=0.05)
+    anchored = estimate_normals(images, NARROW, mask)
+    plain = estimate_normals(images, NARROW, mask, specular_anchor=False)
+    assert anchored.options["anchor"] == "corrected"
+    assert abs(anchored.options["cone_scale"] - true_scale) < 0.01, anchored.options
+    e_anchored = angular_error_deg(anchored.normals, normals, mask).mean()
+    e_plain = angular_error_deg(plain.normals, normals, mask).mean()
+    assert e_anchored < 0.4 < 1.0 < e_plain, (e_anchored, e_plain)
+
+
+def test_anchor_keeps_correct_lights():
+    images, normals, mask = render(1.0, roughness=0.05)
+    anchored = estimate_normals(images, NARROW, mask)
+    assert anchored.options["anchor"] == "consistent" and anchored.options["cone_scale"] == 1.0
+    assert abs(anchored.options["mismatch_deg"]) < 0.05
+    plain = estimate_normals(images, NARROW, mask, specular_anchor=False)
+    np.testing.assert_array_equal(anchored.normals, plain.normals)
+
+
+def test_mismatch_is_unbiased_at_the_true_normals():
+    images, normals, mask = render(1.0, roughness=0.05)
+    obs = images[:, mask].T.astype(float)
+    albedo = 0.7 / np.pi            # the Lambertian part of cook_torrance_images
+    found = highlight_mismatch(obs, normals[mask] * albedo, NARROW)
+    assert found.size > 50
+    assert abs(np.median(found)) < 0.1
+    # A normal field 1 degree too slanted (tilted away from the view) reads clearly positive
+    # (the discrete lights attenuate the reading; the secant in anchor_scale uses the measured
+    # response, so only its sign and size matter).
+    tilted = normals[mask].copy()
+    slant = np.arccos(np.clip(tilted[:, 2], -1, 1)) + np.radians(1.0)
+    azimuth = np.arctan2(tilted[:, 1], tilted[:, 0])
+    tilted = np.stack([np.sin(slant) * np.cos(azimuth), np.sin(slant) * np.sin(azimuth), np.cos(slant)], axis=1)
+    assert 0.4 < np.median(highlight_mismatch(obs, tilted * albedo, NARROW)) < 1.2
+
+
+def test_no_highlights_no_change():
+    images, _, mask = render(1.05, roughness=0.4)
+    anchored = estimate_normals(images, NARROW, mask)
+    assert anchored.options["anchor"] == "no highlights" and anchored.options["cone_scale"] == 1.0
+    plain = estimate_normals(images, NARROW, mask, specular_anchor=False)
+    np.testing.assert_array_equal(anchored.normals, plain.normals)
+
+
+def test_local_bias_is_not_taken_for_a_global_one():
+    # A broader lobe that the biquadratic fit absorbs near the highlight only: the normals are
+    # too slanted there, but scaling the cone does not remove it, so the lights are kept.
+    images, normals, mask = render(1.0, roughness=0.1, ks=2.0)
+    anchored = estimate_normals(images, NARROW, mask)
+    assert anchored.options["mismatch_deg"] > 0.3
+    assert anchored.options["anchor"] == "no global root" and anchored.options["cone_scale"] == 1.0
+
+
+def test_anchor_option_checked_and_skipped_for_per_pixel_lights():
+    images, _, mask = render(1.0, roughness=0.05, size=32)
+    with pytest.raises(InputError, match="specular_anchor"):
+        estimate_normals(images, NARROW, mask, specular_anchor="yes")
+    per_pixel = np.broadcast_to(NARROW[:, None, None, :], NARROW.shape[:1] + mask.shape + (3,))
+    result = estimate_normals(images, per_pixel, mask)       # robust selection, per-pixel lights
+    assert "cone_scale" not in result.options
+    shared = estimate_normals(images, NARROW, mask, specular_anchor=False)
+    np.testing.assert_allclose(result.normals, shared.normals, atol=1e-4)
+    assert "cone_scale" not in estimate_normals(images, NARROW, mask, method="lambert").options
+
+
+def test_anchor_reduces_the_bias_of_a_sub_lambertian_diffuse():
+    # Exact lights, but a diffuse falloff (n . l)^1.2 that the biquadratic cannot tell from a
+    # steeper slant under a narrow cone (the DiLiGenT-ball pattern): the sharp highlights pull
+    # the normals back.
+    normals, mask = sphere_normals(96)
+    images = cook_torrance_images(normals, mask, NARROW, roughness=0.05, kd=0.0, ks=0.5)
+    shading = np.clip(normals[mask] @ NARROW.T, 0, None) ** 1.2
+    images[:, mask] += (0.7 / np.pi * shading.T).astype(np.float32)
+    anchored = estimate_normals(images, NARROW, mask)
+    plain = estimate_normals(images, NARROW, mask, specular_anchor=False)
+    e_anchored = angular_error_deg(anchored.normals, normals, mask).mean()
+    e_plain = angular_error_deg(plain.normals, normals, mask).mean()
+    assert anchored.options["anchor"] == "corrected" and anchored.options["cone_scale"] > 1.0
+    assert e_anchored < 0.7 * e_plain, (e_anchored, e_plain)
