@@ -241,6 +241,12 @@ class PtpCamera(Camera):
         self._detached = None
         self._eos_values: dict[int, int] = {}
         self._eos_allowed: dict[int, list] = {}
+        self.shutter_seconds = 0.0  # set by set_exposure: a capture's events may come that late
+
+    @property
+    def _capture_wait(self) -> float:
+        """Seconds to wait for a capture's image: the timeout after the shutter closes."""
+        return self.timeout + self.shutter_seconds
 
     # -- naming and errors -------------------------------------------------------------------
     @property
@@ -596,7 +602,7 @@ class PtpCamera(Camera):
         # no drain here: the previous capture consumed its events up to CaptureComplete, and
         # open/reset drain the rest, so a 1 ms drain timeout per frame is not paid
         resp = self._check(self._transaction(Op.InitiateCapture, (0, 0)), Op.InitiateCapture)
-        handles, deadline = [], time.monotonic() + self.timeout
+        handles, deadline = [], time.monotonic() + self._capture_wait
         while time.monotonic() < deadline:
             ev = self._read_event(deadline - time.monotonic())
             if ev is None:
@@ -609,20 +615,23 @@ class PtpCamera(Camera):
                                                            == resp.tid):
                 break
         if not handles:
-            raise CameraTimeout(f"{self.name}: no ObjectAdded event within {self.timeout:g} s "
-                                f"of InitiateCapture; any image taken stays on the camera")
+            raise CameraTimeout(f"{self.name}: no ObjectAdded event within "
+                                f"{self._capture_wait:g} s of InitiateCapture; any image taken "
+                                f"stays on the camera")
         return handles
 
     def _poll(self, fetch, what: str) -> int:
-        """Call ``fetch()`` until it returns a handle, with growing pauses, until the timeout."""
-        deadline, pause = time.monotonic() + self.timeout, 0.001
+        """Call ``fetch()`` until it returns a handle, with growing pauses, until the timeout
+        (counted from the end of the exposure)."""
+        deadline, pause = time.monotonic() + self._capture_wait, 0.001
         while True:
             handle = fetch()
             if handle is not None:
                 return handle
             if time.monotonic() >= deadline:
                 raise CameraTimeout(f"{self.name}: {what} reported no new image within "
-                                    f"{self.timeout:g} s; any image taken stays on the camera")
+                                    f"{self._capture_wait:g} s; any image taken stays on the "
+                                    f"camera")
             time.sleep(pause)
             pause = min(pause * 2, 0.05)
 
@@ -655,7 +664,7 @@ class PtpCamera(Camera):
     def _trigger_nikon(self) -> int:
         op = Op.NIKON_InitiateCaptureRecInSdram
         self._check(self._transaction(op, (_NIKON_NO_AF,)), op)
-        deadline, pause = time.monotonic() + self.timeout, 0.001
+        deadline, pause = time.monotonic() + self._capture_wait, 0.001
         while self._transaction(Op.NIKON_DeviceReady, retry_busy=False).code == RC.DeviceBusy:
             if time.monotonic() >= deadline:
                 raise CameraBusy(f"{self.name}: still busy {self.timeout:g} s after "
@@ -743,6 +752,8 @@ class PtpCamera(Camera):
             record = setter(key, exposure[key], want)
             report[key] = {"requested": exposure[key], **record}
             log.info("%s: exposure.%s set to %s", self.name, key, record["display"])
+            if key == "shutter":
+                self.shutter_seconds = float(record["value"] or 0.0)
         return report
 
     def _exposure_error(self, key, requested, message):

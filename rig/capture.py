@@ -52,6 +52,7 @@ from pipeline.errors import PsrigError, SessionError
 from pipeline.progress import progress as progress_bar
 from pipeline.session import FOLDERS, MANIFEST, Session, now_iso
 from rig.camera import CameraError, format_exposure, make_camera
+from rig.keepalive import LightHold
 from rig.lights import LightError, make_light_controller
 
 __all__ = ["capture_session", "plan_frames", "check_raw_file", "CaptureError", "CaptureInterrupted",
@@ -493,11 +494,7 @@ def _capture_one(session, rig_config, devices, shot):
     if devices.sim is not None:
         devices.sim.before_frame(shot.frame_id, shot.kind)
     try:
-        if shot.light is None:
-            devices.lights.off()
-        else:
-            devices.lights.on(shot.light)
-        image = devices.camera.capture()
+        image = _expose_held(devices, shot, what)
     except (LightError, CameraError) as exc:
         dark = ("the lights are switched off" if getattr(devices.lights, "is_open", True)
                 else "the light controller is gone (its watchdog switches the lights off)")
@@ -513,6 +510,38 @@ def _capture_one(session, rig_config, devices, shot):
                       save=False, exposure=_frame_exposure(rig_config, devices.exposure),
                       captured_at=now_iso(),
                       camera_file=image.filename, **shot.extra)
+
+
+#: Exposures of a frame whose light did not hold (watchdog, interlock) before it is refused.
+LIGHT_ATTEMPTS = 2
+
+
+def _expose_held(devices, shot, what):
+    """Light ``shot.light`` (or all off), expose with the light held, download; the image.
+
+    A frame whose light was not lit all through the exposure is shot again once, then refused
+    (:class:`rig.lights.LightError` naming the frame), never stored.
+    """
+    problems = []
+    for _ in range(LIGHT_ATTEMPTS):
+        if shot.light is None:
+            devices.lights.off()
+        else:
+            devices.lights.on(shot.light)
+        with LightHold(devices.lights, shot.light, _longest_wait(devices)) as hold:
+            image = devices.camera.capture()
+        problem = hold.problem()
+        if problem is None:
+            return image
+        problems.append(problem)
+    raise LightError(f"{what}: {'; then '.join(problems)}; the frame was not stored "
+                     f"({LIGHT_ATTEMPTS} exposures)")
+
+
+def _longest_wait(devices):
+    """Real seconds an exposure may take at most: the camera's timeout plus the shutter."""
+    shutter = (devices.exposure.get("shutter") or {}).get("value") or 0.0
+    return float(getattr(devices.camera, "timeout", 30.0)) + float(shutter) + 5.0
 
 
 def _lights_off(lights, raise_errors):

@@ -25,6 +25,7 @@ Other controllers plug in by subclassing :class:`LightController` and registerin
 import abc
 import operator
 import re
+import threading
 import time
 
 import serial
@@ -86,6 +87,17 @@ class LightController(abc.ABC):
 
     count = None
     is_open = True  # drivers with a connection report whether it is still up
+    watchdog = None  # seconds of silence after which the controller darkens itself; None: never
+
+    @property
+    def keepalive_interval(self):
+        """Real seconds between keep-alives that hold a light through a long exposure, or None
+        when this controller has no watchdog (nothing to keep alive) or cannot be kept alive."""
+        return None
+
+    def keep_alive(self):
+        """Reset the controller's watchdog; returns the light it reports lit (None: all off)."""
+        raise LightError(f"{self}: this light controller cannot be kept alive")
 
     @abc.abstractmethod
     def open(self):
@@ -160,10 +172,16 @@ class SerialLightController(LightController):
         Extra attempts after a timed-out or corrupted reply (never after a definite ``ERR``).
     expected_count : int, optional
         Refuse a controller whose ``ID?`` reports another light count.
+    watchdog : float or None
+        The firmware's command watchdog, seconds (the protocol's is 5 s): during exposures
+        capture sends a keep-alive (``STATE?``) every :attr:`keepalive_interval` seconds.
     """
 
+    KEEPALIVE_SHARE = 0.2  # keep-alives per watchdog period: 5, so one lost reply is harmless
+    KEEPALIVE_MAX = 1.0    # seconds: "STATE? about every second" at the protocol's 5 s
+
     def __init__(self, port, *, baudrate=115200, timeout=1.0, write_timeout=1.0,
-                 reset_delay=2.0, retries=1, expected_count=None):
+                 reset_delay=2.0, retries=1, expected_count=None, watchdog=5.0):
         self.port = str(port)
         self.baudrate = int(baudrate)
         self.timeout = float(timeout)
@@ -171,9 +189,12 @@ class SerialLightController(LightController):
         self.reset_delay = float(reset_delay)
         self.retries = int(retries)
         self.expected_count = None if expected_count is None else int(expected_count)
+        self.watchdog = None if not watchdog else float(watchdog)
         self.count = None
         self.lit = None  # the light last confirmed on by its OK, or None
         self._serial = None
+        # capture's keep-alive thread and the main thread share the line: one exchange at a time
+        self._line_lock = threading.RLock()
 
     def __repr__(self):
         return f"{type(self).__name__}({self.port!r})"
@@ -265,6 +286,17 @@ class SerialLightController(LightController):
         match = self._transact("STATE?", re.compile(r"STATE (\d+|-)"))
         return None if match[1] == "-" else int(match[1])
 
+    @property
+    def keepalive_interval(self):
+        """Real seconds between keep-alives: a fifth of the watchdog, at most 1 s."""
+        if self.watchdog is None:
+            return None
+        return min(self.KEEPALIVE_MAX, self.KEEPALIVE_SHARE * self.watchdog)
+
+    def keep_alive(self):
+        """``STATE?``: any line resets the firmware's watchdog; returns the light it reports."""
+        return self.state()
+
     def identify(self):
         """Ask ``ID?`` again; returns (protocol version, light count)."""
         match = self._transact("ID?", _ID_REPLY, expect_text="PSRIG-LIGHTS 1 <count>")
@@ -289,7 +321,8 @@ class SerialLightController(LightController):
         attempts = 1 + (self.retries if retries is None else retries)
         problems = []
         for _ in range(attempts):
-            line = self._exchange(command, what)
+            with self._line_lock:
+                line = self._exchange(command, what)
             if line is None:
                 problems.append(f"no reply within {self.timeout:g} s")
                 continue
@@ -344,20 +377,34 @@ class SimLightController(SerialLightController):
         Use this firmware instead of making one; it is started here if needed and stopped on
         :meth:`close` only if this controller started it.
     watchdog, boot_delay : float
-        Passed to a firmware made here.
+        Passed to a firmware made here (simulated seconds).
     **options
         :class:`SerialLightController` options (timeout, retries, reset_delay ...).
+
+    Attributes
+    ----------
+    time_scale : float
+        Simulated seconds per real second of the firmware's clock: the keep-alive interval and
+        the wait for the board's boot are divided by it.
     """
 
     def __init__(self, count=32, *, firmware=None, watchdog=5.0, boot_delay=0.0, **options):
         from rig.sim.firmware import SimulatedLightFirmware  # the sim stays out of real rigs' imports
 
-        options.setdefault("reset_delay", boot_delay)
-        options.setdefault("expected_count", count)
         self.firmware = firmware or SimulatedLightFirmware(count, watchdog=watchdog,
                                                            boot_delay=boot_delay)
+        self.time_scale = self.firmware.clock.scale
+        options.setdefault("reset_delay", self.firmware.boot_delay / self.time_scale)
+        options.setdefault("expected_count", count)
+        options["watchdog"] = self.firmware.watchdog
         self._owns_firmware = False
         super().__init__(self.firmware.port or "(simulated, not started)", **options)
+
+    @property
+    def keepalive_interval(self):
+        """The serial driver's interval in the firmware's time, converted to real seconds."""
+        interval = super().keepalive_interval
+        return None if interval is None else interval / self.time_scale
 
     def open(self):
         """Start the firmware if needed, then open its pty like a serial port."""
@@ -377,7 +424,7 @@ class SimLightController(SerialLightController):
 
 def _serial_from_config(config, **overrides):
     options = {key: config[key] for key in ("baudrate", "timeout", "write_timeout", "reset_delay",
-                                            "retries") if config.get(key) is not None}
+                                            "retries", "watchdog") if config.get(key) is not None}
     if config.get("count") is not None:
         options["expected_count"] = config["count"]
     options.update(overrides)

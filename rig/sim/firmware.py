@@ -29,12 +29,16 @@ import termios
 import threading
 import time
 import tty
+from collections import deque
+
+from rig.sim.clock import SimClock
 
 __all__ = ["SimulatedLightFirmware", "FAULT_KINDS", "PROTOCOL_ID"]
 
 PROTOCOL_ID = "PSRIG-LIGHTS 1"
 FAULT_KINDS = ("drop_reply", "garble", "err", "interlock", "disconnect")
 MAX_LINE = 64  # the sketch's line buffer; longer lines are rejected, not overflowed
+TIMELINE_LENGTH = 4096  # light changes kept for exposures to integrate over
 _POLL = 0.01  # seconds between watchdog checks
 
 
@@ -54,6 +58,10 @@ class SimulatedLightFirmware:
         ``{kind: count}`` faults to inject from the start, kinds in :data:`FAULT_KINDS`.
     ident : str, optional
         Reply to ``ID?`` instead of ``PSRIG-LIGHTS 1 <count>`` (to test a wrong device).
+    clock : rig.sim.clock.SimClock, optional
+        The firmware's time (watchdog, boot delay, the light timeline); default real time. A
+        simulated camera sharing it integrates what was lit over its exposures
+        (:meth:`light_weights`).
 
     Attributes
     ----------
@@ -63,9 +71,11 @@ class SimulatedLightFirmware:
         How many times the watchdog switched a light off.
     """
 
-    def __init__(self, count=32, *, watchdog=5.0, boot_delay=0.0, faults=None, ident=None):
+    def __init__(self, count=32, *, watchdog=5.0, boot_delay=0.0, faults=None, ident=None,
+                 clock=None):
         if int(count) < 1:
             raise ValueError(f"count must be at least 1, got {count}")
+        self.clock = clock or SimClock()
         self.count = int(count)
         self.watchdog = float(watchdog)
         self.boot_delay = float(boot_delay)
@@ -74,8 +84,11 @@ class SimulatedLightFirmware:
         self.watchdog_trips = 0
         self._levels = [255] * self.count
         self._lit = None
+        # (simulated time, light lit or None, its level): every change, oldest first; bounded,
+        # since an exposure only looks back over its own duration
+        self._timeline = deque([(float("-inf"), None, 0)], maxlen=TIMELINE_LENGTH)
         self._faults = {}
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()
         self._master = self._slave = None
         self._thread = None
         self._stop = threading.Event()
@@ -105,6 +118,35 @@ class SimulatedLightFirmware:
         """True while the pty is up (false after :meth:`stop` or a ``disconnect`` fault)."""
         return self._master is not None
 
+    def light_weights(self, start, end):
+        """What was lit between simulated times ``start`` and ``end``: ``{light: weight}``.
+
+        A light's weight is the share of the interval it was lit times its level / 255; an
+        instant (``end <= start``) gives the state at ``start``. Lights off contribute nothing,
+        so a light cut by the watchdog half way through gives 0.5.
+        """
+        with self._lock:
+            self._check_watchdog()
+            changes = list(self._timeline)
+        weights = {}
+        span = end - start
+        for (t, lit, level), nxt in zip(changes, changes[1:] + [(float("inf"), None, 0)]):
+            if lit is None or level == 0:
+                continue
+            if span <= 0:
+                share = 1.0 if t <= start < nxt[0] else 0.0
+            else:
+                share = max(0.0, min(end, nxt[0]) - max(start, t)) / span
+            if share > 0:
+                weights[lit] = weights.get(lit, 0.0) + share * level / 255.0
+        return weights
+
+    def _set_lit(self, index, when=None):
+        """Switch to ``index`` (None: all off) and note the change in the timeline."""
+        self._lit = index
+        level = 0 if index is None else self._levels[index]
+        self._timeline.append((self.clock.now() if when is None else when, index, level))
+
     def inject(self, kind, count=1):
         """Make the next ``count`` commands suffer fault ``kind`` (one of :data:`FAULT_KINDS`)."""
         if kind not in FAULT_KINDS:
@@ -129,8 +171,8 @@ class SimulatedLightFirmware:
         tty.setraw(self._slave, termios.TCSANOW)
         self._port = os.ttyname(self._slave)
         self._stop.clear()
-        self._boot_until = time.monotonic() + self.boot_delay
-        self._last_command = time.monotonic()
+        self._boot_until = self.clock.now() + self.boot_delay
+        self._last_command = self.clock.now()
         self._thread = threading.Thread(target=self._run, name=f"light-firmware {self._port}",
                                         daemon=True)
         self._thread.start()
@@ -154,7 +196,8 @@ class SimulatedLightFirmware:
 
     def _hang_up(self):
         # State first, then the fds: whoever sees the hang-up must also see it dark and gone.
-        self._lit = None
+        with self._lock:
+            self._set_lit(None)
         fds, self._master, self._slave = (self._master, self._slave), None, None
         for fd in fds:
             if fd is not None:
@@ -175,8 +218,9 @@ class SimulatedLightFirmware:
             except (OSError, ValueError):
                 data = b""  # no slave open right now: nothing to read
                 time.sleep(_POLL)
-            self._check_watchdog()
-            if not data or time.monotonic() < self._boot_until:
+            with self._lock:
+                self._check_watchdog()
+            if not data or self.clock.now() < self._boot_until:
                 continue
             buffer += data
             while b"\n" in buffer and self._master is not None:
@@ -191,9 +235,11 @@ class SimulatedLightFirmware:
                 buffer, overflow = b"", True
 
     def _check_watchdog(self):
+        # Called with the lock held. The light goes out exactly ``watchdog`` after the last
+        # command, as the sketch's millis() comparison does, however late this poll runs.
         if (self.watchdog > 0 and self._lit is not None
-                and time.monotonic() - self._last_command > self.watchdog):
-            self._lit = None
+                and self.clock.now() - self._last_command > self.watchdog):
+            self._set_lit(None, when=self._last_command + self.watchdog)
             self.watchdog_trips += 1
 
     def _take_fault(self, kind):
@@ -208,14 +254,17 @@ class SimulatedLightFirmware:
         if not text:
             return
         self.history.append(text)
-        self._last_command = time.monotonic()
+        with self._lock:
+            self._check_watchdog()  # a trip due before this command happened before it
+            self._last_command = self.clock.now()
         if self._take_fault("disconnect"):
             self._hang_up()
             return
         if self._take_fault("err"):
             self._send("ERR 1 unknown command")
             return
-        reply = self.execute(text)
+        with self._lock:
+            reply = self.execute(text)
         if self._take_fault("drop_reply"):
             return
         if self._take_fault("garble"):
@@ -243,16 +292,16 @@ class SimulatedLightFirmware:
         if name == "STATE?" and not args:
             return f"STATE {'-' if self._lit is None else self._lit}"
         if name == "OFF" and not args:
-            self._lit = None
+            self._set_lit(None)
             return "OK OFF"
         if name == "ON" and len(args) == 1:
             index = self._index(args[0])
             if index is None:
                 return f"ERR 2 bad index {args[0]}"
             if self._take_fault("interlock"):
-                self._lit = None
+                self._set_lit(None)
                 return "ERR 3 interlock open"
-            self._lit = index
+            self._set_lit(index)
             return f"OK ON {index}"
         if name == "LEVEL" and len(args) == 2:
             index = self._index(args[0])
@@ -261,6 +310,8 @@ class SimulatedLightFirmware:
             if not (args[1].isdigit() and len(args[1]) <= 3 and int(args[1]) <= 255):
                 return f"ERR 1 bad level {args[1]}"
             self._levels[index] = int(args[1])
+            if self._lit == index:  # the lit light dims at once, as the sketch's applyLight
+                self._set_lit(index)
             return f"OK LEVEL {index} {int(args[1])}"
         return "ERR 1 unknown command"
 
