@@ -51,9 +51,10 @@ import numpy as np
 from pipeline.errors import PsrigError, SessionError
 from pipeline.progress import progress as progress_bar
 from pipeline.session import FOLDERS, MANIFEST, Session, now_iso
-from rig.camera import CameraError, format_exposure, make_camera
+from rig.camera import CameraError, format_exposure
+from rig.drivers import make_camera, make_light_controller
 from rig.keepalive import LightHold
-from rig.lights import LightError, make_light_controller
+from rig.lights import LightError
 
 __all__ = ["capture_session", "plan_frames", "check_raw_file", "CaptureError", "CaptureInterrupted",
            "Shot", "PARTIAL", "SPHERE_PROMPT", "OUTLINE_PROMPT",
@@ -225,7 +226,7 @@ def _clear_stillborn(root):
 @contextmanager
 def _open_devices(rig_config, sim):
     """Yield the opened lights and camera (of ``sim``, a new simulated rig, or the hardware)."""
-    if sim is None and rig_config.is_simulated:
+    if sim is None and rig_config.simulated_camera:
         from rig.sim.rig import SimulatedRig  # the simulator stays out of real rigs' imports
 
         sim = SimulatedRig(rig_config)
@@ -239,9 +240,6 @@ def _open_devices(rig_config, sim):
             if owned:
                 sim.close()
         return
-    if rig_config.camera.get("driver") == "sim":
-        raise CaptureError(f"{rig_config.source}: rig '{rig_config.name}': camera.driver: a simulated "
-                           "camera needs simulated lights too (lights.driver: sim)")
     try:
         lights, camera = make_light_controller(rig_config.lights), make_camera(dict(rig_config.camera))
     except (LightError, CameraError) as exc:

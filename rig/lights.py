@@ -18,8 +18,9 @@ once when its reply times out or arrives corrupted, and never assumes a light is
 ``OK``. Used as a context manager it switches every light off on the way out, even when the
 block raised.
 
-Other controllers plug in by subclassing :class:`LightController` and registering a factory in
-:data:`LIGHT_DRIVERS` under the ``driver`` name that rigs.yaml uses.
+Other controllers plug in by subclassing :class:`LightController` and registering a
+:class:`rig.drivers.LightDriver` under the ``driver`` name that rigs.yaml uses (built in, or a
+``psrig.lights`` entry point); :func:`rig.drivers.make_light_controller` builds them.
 """
 
 import abc
@@ -36,7 +37,7 @@ __all__ = [
     "LightError", "LightConnectionError", "LightTimeout", "LightProtocolError",
     "LightCommandError", "LightIndexError", "LightInterlockError",
     "LightController", "SerialLightController", "SimLightController",
-    "LIGHT_DRIVERS", "make_light_controller", "PROTOCOL_VERSION",
+    "PROTOCOL_VERSION",
 ]
 
 PROTOCOL_VERSION = 1
@@ -420,51 +421,3 @@ class SimLightController(SerialLightController):
         if self._owns_firmware:
             self.firmware.stop()
             self._owns_firmware = False
-
-
-def _serial_from_config(config, **overrides):
-    options = {key: config[key] for key in ("baudrate", "timeout", "write_timeout", "reset_delay",
-                                            "retries", "watchdog") if config.get(key) is not None}
-    if config.get("count") is not None:
-        options["expected_count"] = config["count"]
-    options.update(overrides)
-    return SerialLightController(config["port"], **options)
-
-
-def _sim_from_config(config, **overrides):
-    options = {key: config[key] for key in ("timeout", "write_timeout", "retries", "watchdog",
-                                            "boot_delay") if config.get(key) is not None}
-    options.update(overrides)
-    return SimLightController(int(config.get("count") or 32), **options)
-
-
-LIGHT_DRIVERS = {
-    "serial": _serial_from_config,
-    "sim": _sim_from_config,
-}
-"""Light drivers by the ``lights.driver`` name of rigs.yaml: factory(config, **overrides)."""
-
-
-def make_light_controller(config, **overrides):
-    """Build the (unopened) light controller a rig's ``lights:`` section describes.
-
-    Parameters
-    ----------
-    config : mapping
-        A rig's ``lights`` section (:class:`rig.config.LightsConfig` or a plain dict) with at
-        least ``driver``; ``port`` for serial drivers.
-    **overrides
-        Constructor options that win over the section (e.g. ``timeout``, ``firmware``).
-
-    Returns
-    -------
-    LightController
-    """
-    driver = config.get("driver")
-    factory = LIGHT_DRIVERS.get(driver)
-    if factory is None:
-        raise LightError(f"lights.driver: unknown light driver {driver!r}; "
-                         f"known: {', '.join(sorted(LIGHT_DRIVERS))}")
-    if driver != "sim" and not config.get("port"):
-        raise LightError(f"lights.port: the {driver!r} light driver needs a port")
-    return factory(config, **overrides)

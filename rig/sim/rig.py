@@ -53,6 +53,7 @@ import numpy as np
 from pipeline.atomic import atomic_write_text
 from rig.camera import PtpCamera
 from rig.config import ConfigError
+from rig.drivers import make_light_controller
 from rig.lights import LightError, SimLightController
 from rig.sim import firmware as _firmware
 from rig.sim import usb_camera as _usb_camera
@@ -232,14 +233,9 @@ class SimulatedRig:
         self.scene, self.shot, self._shots = "object", None, 0
         self.last_weights = {}  # what the last exposure saw lit: {light: weight}
         self.clock = SimClock(self.settings["time_scale"])
-        self.firmware = SimulatedLightFirmware(rig_config.lights.count, faults=start["light"],
-                                               watchdog=rig_config.lights.get("watchdog", 5.0),
-                                               clock=self.clock)
         self.backend = _usb_camera.make_backend(self._render, behaviour=self.behaviour,
                                                 faults=start["camera"])
-        options = {k: rig_config.lights[k] for k in _LIGHT_OPTIONS if rig_config.lights.get(k) is not None}
-        self.lights = SimLightController(rig_config.lights.count, firmware=self.firmware,
-                                         reset_delay=0.0, **options)
+        self.firmware, self.lights = self._make_lights(start["light"])
         cam_options = {k: rig_config.camera[k] for k in _CAMERA_OPTIONS if k in rig_config.camera}
         self.camera = PtpCamera(backend=self.backend, path=self.behaviour, **cam_options)
         self.is_open = False
@@ -248,6 +244,21 @@ class SimulatedRig:
         return f"SimulatedRig({self.config.name!r}, {len(self.true_lights['directions'])} lights)"
 
     # -- building ------------------------------------------------------------------------------
+    def _make_lights(self, faults):
+        """(firmware or None, controller): the simulated firmware and the serial driver on it,
+        or, for a rig whose lights are real, that rig's own controller (no firmware)."""
+        config = self.config.lights
+        if config.driver != "sim":
+            if faults:
+                raise ConfigError(f"faults: light faults ({', '.join(faults)}) need simulated "
+                                  f"lights; rig '{self.config.name}' has {config.driver!r} lights")
+            return None, make_light_controller(config)
+        firmware = SimulatedLightFirmware(config.count, faults=faults,
+                                          watchdog=config.get("watchdog", 5.0), clock=self.clock)
+        options = {k: config[k] for k in _LIGHT_OPTIONS if config.get(k) is not None}
+        return firmware, SimLightController(config.count, firmware=firmware, reset_delay=0.0,
+                                            **options)
+
     def _make_true_lights(self):
         s, count = self.settings, self.config.lights.count
         directions = jitter_directions(self.config.lights.directions, s["light_jitter_deg"], s["seed"])
@@ -267,7 +278,8 @@ class SimulatedRig:
         """Start the firmware, open the light driver on it and the camera; returns self."""
         if self.is_open:
             return self
-        self.firmware.start()
+        if self.firmware is not None:
+            self.firmware.start()
         try:
             self.lights.open()
             self.camera.open()
@@ -287,7 +299,8 @@ class SimulatedRig:
         finally:
             self.lights.close()
             self.camera.close()
-            self.firmware.stop()
+            if self.firmware is not None:
+                self.firmware.stop()
             self.is_open = False
 
     def __enter__(self):
@@ -317,6 +330,8 @@ class SimulatedRig:
         armed = self._faults.pop(frame_id, None)
         if armed:
             for kind_, count in armed["light"].items():
+                if self.firmware is None:
+                    raise ConfigError(f"faults: light fault {kind_!r} needs simulated lights")
                 self.firmware.inject(kind_, count)
             for kind_, count in armed["camera"].items():
                 self.backend.inject(kind_, count)
@@ -331,6 +346,13 @@ class SimulatedRig:
 
     def _expose(self):
         """Hold the shutter open; returns ``{light: weight}`` of what was lit meanwhile."""
+        if self.firmware is None:  # real lights: the light their controller confirmed on
+            lit = getattr(self.lights, "lit", None)
+            if self.settings["exposure_seconds"]:
+                time.sleep(self.settings["exposure_seconds"])
+            else:
+                self.clock.sleep(self._exposure_seconds())
+            return {} if lit is None else {lit: 1.0}
         if self.settings["exposure_seconds"]:
             start = self.clock.now()
             time.sleep(self.settings["exposure_seconds"])
