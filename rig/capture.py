@@ -55,6 +55,7 @@ from rig.camera import CameraError, format_exposure
 from rig.drivers import make_camera, make_light_controller
 from rig.keepalive import LightHold
 from rig.lights import LightError
+from rig.rawtype import RawTypeError, raw_extension
 
 __all__ = ["capture_session", "plan_frames", "check_raw_file", "CaptureError", "CaptureInterrupted",
            "Shot", "PARTIAL", "SPHERE_PROMPT", "OUTLINE_PROMPT",
@@ -343,6 +344,7 @@ def _truth_complete(session):
 
 def _reconcile(session, rig_config, plan, echo):
     """Check and repair the session before capturing; returns the shots still to take."""
+    _refuse_links(session)
     for folder in (session.root, session.path("raw"), session.path("truth")):
         for path in folder.glob(".*.tmp*") if folder.is_dir() else ():
             if path.is_file() and _TEMP_FILE.match(path.name):
@@ -360,6 +362,19 @@ def _reconcile(session, rig_config, plan, echo):
         echo(f"capture: {session.root}: {len(plan) - len(todo)} of {len(plan)} frames present and "
              f"verified, {len(todo)} to capture")
     return todo
+
+
+def _refuse_links(session):
+    """psrig writes raw files itself, never through a link: any symbolic link in raw/ (an
+    orphan pointing nowhere above all, which a write would silently replace) is refused."""
+    raw = session.root / "raw"
+    for path in sorted(raw.iterdir()) if raw.is_dir() and not raw.is_symlink() else ():
+        if path.is_symlink():
+            target = os.readlink(path)
+            state = "which does not exist (an orphan link)" if not path.exists() else "a link"
+            raise CaptureError(f"{session.root}: raw/{path.name} is a symbolic link to {target}, "
+                               f"{state}; raw files are written by psrig, never through links: "
+                               "remove it (or put the real file back in its place), then resume")
 
 
 def _adopt_orphans(session, plan, echo):
@@ -503,11 +518,22 @@ def _capture_one(session, rig_config, devices, shot):
     if image.size != len(image.data):
         raise CaptureError(f"{session.root}: {what}: the camera delivered {len(image.data)} of "
                            f"{image.size} bytes; not stored", shot.frame_id, shot.light)
-    suffix = Path(image.filename).suffix.lower() or f".{rig_config.raw_format}"
+    try:  # psrig names the file: the camera's name is only metadata (it may hold anything)
+        suffix = "." + raw_extension(image.data, rig_config.raw_format)
+    except RawTypeError as exc:
+        raise CaptureError(f"{session.root}: {what}: the camera delivered a file "
+                           f"({_printable(image.filename)}) that is {exc}; not stored",
+                           shot.frame_id, shot.light) from None
     session.add_frame(shot.kind, image.data, light=shot.light, suffix=suffix, frame_id=shot.frame_id,
                       save=False, exposure=_frame_exposure(rig_config, devices.exposure),
                       captured_at=now_iso(),
-                      camera_file=image.filename, **shot.extra)
+                      camera_file=_printable(image.filename), **shot.extra)
+
+
+def _printable(name):
+    """The camera's file name as manifest metadata: control characters escaped, bounded."""
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(name))
+    return text[:200]
 
 
 #: Exposures of a frame whose light did not hold (watchdog, interlock) before it is refused.

@@ -41,8 +41,11 @@ __all__ = [
 ]
 
 PROTOCOL_VERSION = 1
-_ID_REPLY = re.compile(r"PSRIG-LIGHTS (\d+) (\d+)")
-_ERR_REPLY = re.compile(r"ERR (\d+)(?: (.*))?")
+MAX_REPLY = 128  # bytes: protocol replies are under 90; a longer line is noise or a flood
+# numbers are bounded as the sketch's are (at most 4 digits): int() never meets a huge one
+_ID_REPLY = re.compile(r"PSRIG-LIGHTS (\d{1,4}) (\d{1,4})")
+_ERR_REPLY = re.compile(r"ERR (\d{1,3})(?: (.*))?")
+_TOO_LONG = object()  # what _exchange returns for a reply line over MAX_REPLY bytes
 
 
 class LightError(PsrigError):
@@ -284,7 +287,7 @@ class SerialLightController(LightController):
 
     def state(self):
         """The light the controller reports lit (``STATE?``), or None when all are off."""
-        match = self._transact("STATE?", re.compile(r"STATE (\d+|-)"))
+        match = self._transact("STATE?", re.compile(r"STATE (\d{1,4}|-)"))
         return None if match[1] == "-" else int(match[1])
 
     @property
@@ -327,6 +330,11 @@ class SerialLightController(LightController):
             if line is None:
                 problems.append(f"no reply within {self.timeout:g} s")
                 continue
+            if line is _TOO_LONG:
+                problems.append(f"a reply of more than {MAX_REPLY} bytes without a line end "
+                                "(a flood of noise, or a device that does not speak psrig light "
+                                "protocol 1)")
+                continue
             match = pattern.fullmatch(line)
             if match:
                 return match
@@ -339,14 +347,16 @@ class SerialLightController(LightController):
         try:
             self._serial.reset_input_buffer()  # a late reply to an earlier attempt is stale
             self._serial.write(command.encode("ascii") + b"\n")
-            raw = self._serial.readline()
+            # read_until bounds both the length and the total time (pyserial's readline would
+            # wait for a line end forever while bytes keep coming, its timeout being per read)
+            raw = self._serial.read_until(b"\n", MAX_REPLY + 1)
         except serial.SerialTimeoutException:
             return None
         except (serial.SerialException, OSError) as exc:
             self.close()
             raise LightConnectionError(f"{what}: the light controller disconnected ({exc})") from None
         if not raw.endswith(b"\n"):
-            return None
+            return _TOO_LONG if len(raw) > MAX_REPLY else None
         return raw.decode("ascii", errors="replace").strip()
 
     def _judge_reply(self, line, what, light, expected):
