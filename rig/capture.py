@@ -101,6 +101,7 @@ class Shot:
     kind: str
     light: int | None = None
     extra: dict = field(default_factory=dict)
+    shutter: str | None = None  # a bracketed shot's shutter time, as the rig file writes it
 
 
 @dataclass
@@ -124,7 +125,20 @@ def plan_frames(rig_config, sphere=True):
         plan += [Shot(f"sphere_{i:03d}", "sphere", i) for i in range(count)]
         if frames.get("outline", False):
             plan.append(Shot("outline_000", "outline"))
-    return plan
+    return _bracketed(plan, rig_config.exposure.get("bracket"))
+
+
+def _bracketed(plan, bracket):
+    """Each shot once per shutter of ``bracket`` (None: the plan as it is), one light's
+    exposures one after the other: ids ``<id>_b<n>``, the group (the unbracketed id), the
+    index and the shutter recorded in each frame's ``bracket``."""
+    if not bracket:
+        return plan
+    return [Shot(f"{shot.frame_id}_b{n}", shot.kind, shot.light,
+                 {**shot.extra, "bracket": {"group": shot.frame_id, "index": n,
+                                            "shutter": str(value), "of": len(bracket)}},
+                 shutter=str(value))
+            for shot in plan for n, value in enumerate(bracket)]
 
 
 # -- the entry point ------------------------------------------------------------------------------
@@ -164,6 +178,7 @@ def capture_session(target, rig_config, *, resume=False, sim=None, progress=True
     session, root = _existing_session(target, rig_config, resume)
     with _open_devices(rig_config, sim) as devices, _sigterm_as_interrupt():
         devices.exposure = _set_exposure(rig_config, devices, echo)
+        _set_levels(rig_config, devices, echo)
         session = session or Session.create(root)
         _record_rig(session, rig_config, devices, echo, devices.exposure)
         if devices.sim is not None and not _truth_complete(session):
@@ -272,8 +287,11 @@ def _set_exposure(rig_config, devices, echo):
     """Set the rig's ``exposure:`` on the camera (before any frame); what it reported back."""
     if not rig_config.exposure:
         return {}
+    exposure = {k: v for k, v in rig_config.exposure.items() if k != "bracket"}
+    if rig_config.exposure.get("bracket"):
+        exposure["shutter"] = rig_config.exposure["bracket"][0]
     try:
-        report = devices.camera.set_exposure(dict(rig_config.exposure))
+        report = devices.camera.set_exposure(exposure)
     except CameraError as exc:
         raise CaptureError(f"{rig_config.source}: rig '{rig_config.name}': {exc}; nothing was "
                            "captured") from exc
@@ -282,9 +300,25 @@ def _set_exposure(rig_config, devices, echo):
     return report
 
 
+def _set_levels(rig_config, devices, echo):
+    """``LEVEL i v`` for every light of the rig's ``lights: levels:`` (before any frame)."""
+    levels = rig_config.lights.get("levels")
+    if levels is None:
+        return
+    try:
+        for index, level in enumerate(levels):
+            devices.lights.set_level(index, int(level))
+    except LightError as exc:
+        raise CaptureError(f"{rig_config.source}: rig '{rig_config.name}': lights.levels: {exc}; "
+                           "nothing was captured") from exc
+    dark = [i for i, level in enumerate(levels) if level == 0]
+    echo(f"capture: light levels set ({min(levels)}-{max(levels)} of 255)"
+         + (f"; lights {', '.join(map(str, dark))} at level 0 will give dark frames" if dark else ""))
+
+
 def _frame_exposure(rig_config, exposure):
     """A frame's ``exposure`` entry: the values the camera reported (the request where unset)."""
-    out = dict(rig_config.exposure)
+    out = {k: v for k, v in rig_config.exposure.items() if k != "bracket"}
     for key, rec in exposure.items():
         value = rec["value"]
         if key == "shutter":
@@ -321,6 +355,7 @@ def _record_rig(session, rig_config, devices, echo, exposure=None):
     session.manifest["lights"].update({
         "source": "nominal", "origin": f"rig '{rig_config.name}' ({rig_config.source})",
         "count": int(lights.count), "directions": np.round(lights.directions, 8).tolist(),
+        "levels": None if lights.get("levels") is None else [int(v) for v in lights.levels],
         "positions": None if lights.get("positions") is None
         else np.round(np.asarray(lights.positions, float), 6).tolist()})
     session.save()
@@ -507,6 +542,7 @@ def _capture_one(session, rig_config, devices, shot):
     if devices.sim is not None:
         devices.sim.before_frame(shot.frame_id, shot.kind)
     try:
+        _set_shutter(devices, shot)
         image = _expose_held(devices, shot, what)
     except (LightError, CameraError) as exc:
         dark = ("the lights are switched off" if getattr(devices.lights, "is_open", True)
@@ -524,10 +560,23 @@ def _capture_one(session, rig_config, devices, shot):
         raise CaptureError(f"{session.root}: {what}: the camera delivered a file "
                            f"({_printable(image.filename)}) that is {exc}; not stored",
                            shot.frame_id, shot.light) from None
+    levels = rig_config.lights.get("levels")
+    extra = dict(shot.extra)
+    if levels is not None and shot.light is not None:
+        extra["level"] = int(levels[shot.light])
     session.add_frame(shot.kind, image.data, light=shot.light, suffix=suffix, frame_id=shot.frame_id,
                       save=False, exposure=_frame_exposure(rig_config, devices.exposure),
                       captured_at=now_iso(),
-                      camera_file=_printable(image.filename), **shot.extra)
+                      camera_file=_printable(image.filename), **extra)
+
+
+def _set_shutter(devices, shot):
+    """Set a bracketed shot's shutter on the camera when it differs from the one set."""
+    current = (devices.exposure.get("shutter") or {}).get("requested")
+    if shot.shutter is None or str(current) == shot.shutter:
+        return
+    report = devices.camera.set_exposure({"shutter": shot.shutter})
+    devices.exposure = {**devices.exposure, **report}
 
 
 def _printable(name):
