@@ -58,6 +58,7 @@ from rig.lights import LightError
 from rig.rawtype import RawTypeError, raw_extension
 
 __all__ = ["capture_session", "plan_frames", "check_raw_file", "CaptureError", "CaptureInterrupted",
+           "open_devices", "set_camera_exposure", "set_light_levels", "preview_check",
            "Shot", "PARTIAL", "SPHERE_PROMPT", "OUTLINE_PROMPT",
            "MANIFEST_INTERVAL"]
 
@@ -144,7 +145,7 @@ def _bracketed(plan, bracket):
 # -- the entry point ------------------------------------------------------------------------------
 
 def capture_session(target, rig_config, *, resume=False, sim=None, progress=True, sphere=None,
-                    on_prompt=None, echo=print):
+                    on_prompt=None, echo=print, preview=False, max_clipped=None):
     """Capture (or, with ``resume``, complete) a session on a rig.
 
     Parameters
@@ -168,6 +169,10 @@ def capture_session(target, rig_config, *, resume=False, sim=None, progress=True
         False skips the sphere frames. Default: a terminal prompt.
     echo : callable
         Receives one line per event (resume summary, adopted files, total time).
+    preview : bool
+        Before the first lit frame of a session, preview the brightest light and refuse to
+        start when it clips more than ``max_clipped`` (default the rig's
+        ``preview: max_clipped``); ``psrig capture`` turns it on unless told not to.
 
     Returns
     -------
@@ -176,10 +181,15 @@ def capture_session(target, rig_config, *, resume=False, sim=None, progress=True
     start = time.perf_counter()
     sphere = bool(rig_config.frames.get("sphere", True) if sphere is None else sphere)
     session, root = _existing_session(target, rig_config, resume)
-    with _open_devices(rig_config, sim) as devices, _sigterm_as_interrupt():
-        devices.exposure = _set_exposure(rig_config, devices, echo)
-        _set_levels(rig_config, devices, echo)
+    with open_devices(rig_config, sim) as devices, _sigterm_as_interrupt():
+        devices.exposure = set_camera_exposure(rig_config, devices, echo)
+        set_light_levels(rig_config, devices, echo)
+        checked = None
+        if preview and not (session and any(f.get("light") is not None for f in session.frames())):
+            checked = preview_check(rig_config, devices, max_clipped, echo)
         session = session or Session.create(root)
+        if checked is not None:
+            session.manifest["rig"]["preview"] = checked
         _record_rig(session, rig_config, devices, echo, devices.exposure)
         if devices.sim is not None and not _truth_complete(session):
             devices.sim.write_truth(session)
@@ -240,7 +250,7 @@ def _clear_stillborn(root):
 # -- devices ------------------------------------------------------------------------------------
 
 @contextmanager
-def _open_devices(rig_config, sim):
+def open_devices(rig_config, sim):
     """Yield the opened lights and camera (of ``sim``, a new simulated rig, or the hardware)."""
     if sim is None and rig_config.simulated_camera:
         from rig.sim.rig import SimulatedRig  # the simulator stays out of real rigs' imports
@@ -283,7 +293,7 @@ def _sigterm_as_interrupt():
 
 # -- the manifest ---------------------------------------------------------------------------------
 
-def _set_exposure(rig_config, devices, echo):
+def set_camera_exposure(rig_config, devices, echo):
     """Set the rig's ``exposure:`` on the camera (before any frame); what it reported back."""
     if not rig_config.exposure:
         return {}
@@ -300,7 +310,26 @@ def _set_exposure(rig_config, devices, echo):
     return report
 
 
-def _set_levels(rig_config, devices, echo):
+def preview_check(rig_config, devices, max_clipped=None, echo=print):
+    """Preview the rig's brightest light (or ``preview: light``); PreviewError when it clips
+    more than ``max_clipped`` (default the rig's). Returns what to record in the manifest."""
+    from rig.preview import brightest_light, check_clipping, take_preview
+
+    limit = rig_config.preview["max_clipped"] if max_clipped is None else float(max_clipped)
+    light = rig_config.preview.get("light", "auto")
+    light = brightest_light(rig_config) if light == "auto" else int(light)
+    shutter = (devices.exposure.get("shutter") or {}).get("value")
+    (stats,) = take_preview(devices, [light], shutter=shutter)
+    check_clipping(stats, limit)
+    channel, share = stats.worst_clipped
+    echo(f"capture: preview of light {light}: at most {100 * share:.2f} % clipped ({channel}), "
+         f"allowed {100 * limit:.2f} %")
+    return {"light": light, "clipped": stats.clipped, "max_clipped": limit,
+            "percentile_99_9": {c: v[99.9] for c, v in stats.percentiles.items()},
+            "focus": round(stats.focus, 6)}
+
+
+def set_light_levels(rig_config, devices, echo):
     """``LEVEL i v`` for every light of the rig's ``lights: levels:`` (before any frame)."""
     levels = rig_config.lights.get("levels")
     if levels is None:
