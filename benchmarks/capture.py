@@ -6,6 +6,8 @@
     and the manifest update. Target: under 20 ms per frame.
 (b) A full capture of the default simulated rig (32 lights: dark, ambient, 32 object and 32
     sphere frames, default scene size), rendering included. Target: under 30 s.
+(c) The same rig bracketed, exposure: {bracket: [1/60, 1/15]}: every frame at both shutters
+    (132 frames; each simulated exposure lasts its shutter time), printed beside (b).
 
     /work/venv/bin/python benchmarks/capture.py [--mb MB] [--keep DIR]
 
@@ -24,7 +26,7 @@ import time
 from pathlib import Path
 
 from rig.capture import capture_session
-from rig.config import get_rig
+from rig.config import get_rig, parse_rigs
 from rig.sim.rig import SimulatedRig
 
 OVERHEAD_TARGET_MS = 20.0
@@ -53,6 +55,19 @@ def full_capture_s(rig, folder):
     return time.perf_counter() - start, len(session.frames())
 
 
+def bracketed_rig(rig):
+    """The rig with exposure: {bracket: [1/60, 1/15]} (same lights, camera, frames)."""
+    text = f"""
+rigs:
+  bracketed:
+    lights: {{driver: sim, count: {rig.lights.count}, directions: {rig.lights.directions.tolist()}}}
+    camera: {{driver: sim, path: generic}}
+    exposure: {{bracket: [1/60, 1/15]}}
+    frames: {dict(rig.frames)}
+"""
+    return parse_rigs(text)["bracketed"]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mb", type=float, help="frame size for (a) in MB (default: the scene's DNG)")
@@ -68,6 +83,14 @@ def main(argv=None) -> int:
         seconds, frames = full_capture_s(rig, folder)
         print(f"(b) full capture of the simulated rig ({frames} frames, default scene): "
               f"{seconds:.2f} s (target {FULL_TARGET_S:.0f} s, ratio {seconds / FULL_TARGET_S:.2f})")
+        start = time.perf_counter()
+        session = capture_session(folder / "bracketed", bracketed_rig(rig), progress=False,
+                                  echo=lambda line: None)
+        bracketed = time.perf_counter() - start
+        count = len(session.frames())
+        print(f"(c) bracketed capture [1/60, 1/15] ({count} frames, simulated exposures "
+              f"included): {bracketed:.2f} s, {1000 * bracketed / count:.1f} ms per frame "
+              f"({bracketed / seconds:.2f} x (b))")
     return 0
 
 

@@ -59,6 +59,9 @@ __all__ = [
     "make_camera",
     "CONFIG_KEYS",
     "PATHS",
+    "MAX_DATASET",
+    "MAX_OBJECT",
+    "MIN_TRANSFER_RATE",
     "choose_value",
     "format_exposure",
 ]
@@ -71,6 +74,14 @@ _STILL_IMAGE_CLASS = 6
 _PTP_RESET_REQUEST, _PTP_CLASS_OUT = 0x66, 0x21
 _EOS_FULL_PRESS = 3          # RemoteReleaseOn/Off button: half + full press
 _NIKON_NO_AF = 0xFFFFFFFF    # InitiateCaptureRecInSdram parameter used by libgphoto2
+#: Largest data phase (bytes) of an operation that returns a dataset (DeviceInfo, ObjectInfo,
+#: property descriptions, event lists): a camera's length field is never trusted beyond it.
+MAX_DATASET = 16 << 20
+#: Largest object a capture may download (bytes): no raw file comes near it.
+MAX_OBJECT = 1 << 30
+#: Slowest transfer an exchange may take (bytes/s): an exchange's total deadline is the
+#: timeout plus its size at this rate, however the camera spaces its packets.
+MIN_TRANSFER_RATE = 1e6
 
 
 class CameraError(PsrigError):
@@ -241,6 +252,13 @@ class PtpCamera(Camera):
         self._detached = None
         self._eos_values: dict[int, int] = {}
         self._eos_allowed: dict[int, list] = {}
+        self._deadline = 0.0  # monotonic time the running exchange's first reply is due by
+        self.shutter_seconds = 0.0  # set by set_exposure: a capture's events may come that late
+
+    @property
+    def _capture_wait(self) -> float:
+        """Seconds to wait for a capture's image: the timeout after the shutter closes."""
+        return self.timeout + self.shutter_seconds
 
     # -- naming and errors -------------------------------------------------------------------
     @property
@@ -414,14 +432,17 @@ class PtpCamera(Camera):
         self._tid = tid + 1 if tid < 0xFFFFFFFE else 1
         return tid
 
-    def _transaction(self, code, params=(), *, retry_busy=True, data=None) -> _Response:
+    def _transaction(self, code, params=(), *, retry_busy=True, data=None,
+                     limit=MAX_DATASET) -> _Response:
         """Run one operation; DeviceBusy is retried with back-off unless ``retry_busy`` is off.
 
-        ``data`` (bytes) is sent to the camera in a data phase (SetDevicePropValue, ...).
+        ``data`` (bytes) is sent to the camera in a data phase (SetDevicePropValue, ...);
+        ``limit`` is the most bytes the operation's data phase can hold (a longer claim is a
+        protocol error, never an allocation).
         """
         delay, waited = self.busy_backoff, 0.0
         for attempt in range(self.busy_retries + 1):
-            resp = self._transact_once(code, params, data)
+            resp = self._transact_once(code, params, data, limit)
             if resp.code != RC.DeviceBusy or not retry_busy:
                 return resp
             if attempt < self.busy_retries:
@@ -431,9 +452,10 @@ class PtpCamera(Camera):
         raise CameraBusy(f"{self.name}: {_op_name(code)} still answered DeviceBusy (0x2019) "
                          f"after {self.busy_retries} retries over {waited:.2f} s")
 
-    def _transact_once(self, code, params, out=None) -> _Response:
+    def _transact_once(self, code, params, out=None, limit=MAX_DATASET) -> _Response:
         tid = self._next_tid()
         what = _op_name(code)
+        self._deadline = time.monotonic() + self.timeout
         with self._usb(what):
             self._dev.write(self._ep_out, ptp.pack_command(code, tid, params), self._ms)
             if out is not None:
@@ -444,7 +466,7 @@ class PtpCamera(Camera):
             data, head = None, memoryview(self._buf)[:n]
             if ctype == ptp.ContainerType.DATA:
                 self._expect(rcode, rtid, code, tid, "data")
-                data, head = self._read_data_phase(n, length)
+                data, head = self._read_data_phase(n, length, limit, what)
             container = ptp.unpack_container(self._complete(head))
         if container.type != ptp.ContainerType.RESPONSE:
             self._stale = True
@@ -460,8 +482,12 @@ class PtpCamera(Camera):
                 f"{self.name}: {kind} container for 0x{code:04X} transaction {tid} arrived "
                 f"while waiting for transaction {want_tid}; the channel will be reset")
 
-    def _read_data_phase(self, n, length):
+    def _read_data_phase(self, n, length, limit, what):
         """Collect a data container of ``length`` bytes whose first ``n`` are in the buffer.
+
+        ``length`` is the camera's claim: above ``limit`` (what the operation can return) it
+        is refused before anything is allocated, and the whole phase must arrive within the
+        exchange's deadline (the timeout plus its size at :data:`MIN_TRANSFER_RATE`).
 
         Returns (payload bytes, memoryview of bytes already read past the container, which
         some cameras run straight into without a zero-length packet).
@@ -469,6 +495,11 @@ class PtpCamera(Camera):
         if length == 0xFFFFFFFF:  # PTP 1.0 marks data phases over 4 GiB this way
             raise ptp.PtpDecodeError("data phases over 4 GiB are not supported")
         size = length - ptp.HEADER.size
+        if size > limit:
+            raise ptp.PtpDecodeError(
+                f"the camera announces a data phase of {size} bytes, but {what} returns at "
+                f"most {limit} here; refused (a length the device got wrong)")
+        deadline = self._deadline + size / MIN_TRANSFER_RATE
         if len(self._assembly) < size:  # kept between frames: fresh pages cost page faults
             self._assembly = bytearray(size)
         out, buf = memoryview(self._assembly)[:size], memoryview(self._buf)
@@ -476,6 +507,13 @@ class PtpCamera(Camera):
         out[:got] = buf[ptp.HEADER.size:ptp.HEADER.size + got]
         tail = bytes(buf[length:n]) if n > length else b""
         while got < size:
+            if time.monotonic() > deadline:
+                self._stale = True
+                raise CameraTimeout(f"{self.name}: {what}: only {got} of {size} bytes arrived "
+                                    f"within {self._deadline_span(size):.2f} s (the exchange's "
+                                    f"deadline: the timeout plus the size at "
+                                    f"{MIN_TRANSFER_RATE / 1e6:g} MB/s); any image stays on the "
+                                    f"camera")
             k = self._dev.read(self._ep_in, self._buf, self._ms)
             if k == 0:
                 raise ptp.PtpDecodeError(f"data phase ended after {got} of {size} bytes")
@@ -485,6 +523,10 @@ class PtpCamera(Camera):
             if k > take:
                 tail = bytes(buf[take:k])
         return bytes(out), memoryview(tail)
+
+    def _deadline_span(self, size) -> float:
+        """Seconds an exchange of ``size`` bytes may take in all."""
+        return self.timeout + size / MIN_TRANSFER_RATE
 
     def _complete(self, head) -> bytes:
         """Bytes of the response container: ``head`` plus reads, skipping zero-length packets."""
@@ -503,8 +545,8 @@ class PtpCamera(Camera):
                                       f"{_rc_name(resp.code)}")
         return resp
 
-    def _data(self, code, *params) -> bytes:
-        resp = self._check(self._transaction(code, params), code)
+    def _data(self, code, *params, limit=MAX_DATASET) -> bytes:
+        resp = self._check(self._transaction(code, params, limit=limit), code)
         if resp.data is None:
             raise CameraProtocolError(f"{self.name}: {_op_name(code)} returned no data")
         return resp.data
@@ -596,7 +638,7 @@ class PtpCamera(Camera):
         # no drain here: the previous capture consumed its events up to CaptureComplete, and
         # open/reset drain the rest, so a 1 ms drain timeout per frame is not paid
         resp = self._check(self._transaction(Op.InitiateCapture, (0, 0)), Op.InitiateCapture)
-        handles, deadline = [], time.monotonic() + self.timeout
+        handles, deadline = [], time.monotonic() + self._capture_wait
         while time.monotonic() < deadline:
             ev = self._read_event(deadline - time.monotonic())
             if ev is None:
@@ -609,20 +651,23 @@ class PtpCamera(Camera):
                                                            == resp.tid):
                 break
         if not handles:
-            raise CameraTimeout(f"{self.name}: no ObjectAdded event within {self.timeout:g} s "
-                                f"of InitiateCapture; any image taken stays on the camera")
+            raise CameraTimeout(f"{self.name}: no ObjectAdded event within "
+                                f"{self._capture_wait:g} s of InitiateCapture; any image taken "
+                                f"stays on the camera")
         return handles
 
     def _poll(self, fetch, what: str) -> int:
-        """Call ``fetch()`` until it returns a handle, with growing pauses, until the timeout."""
-        deadline, pause = time.monotonic() + self.timeout, 0.001
+        """Call ``fetch()`` until it returns a handle, with growing pauses, until the timeout
+        (counted from the end of the exposure)."""
+        deadline, pause = time.monotonic() + self._capture_wait, 0.001
         while True:
             handle = fetch()
             if handle is not None:
                 return handle
             if time.monotonic() >= deadline:
                 raise CameraTimeout(f"{self.name}: {what} reported no new image within "
-                                    f"{self.timeout:g} s; any image taken stays on the camera")
+                                    f"{self._capture_wait:g} s; any image taken stays on the "
+                                    f"camera")
             time.sleep(pause)
             pause = min(pause * 2, 0.05)
 
@@ -655,7 +700,7 @@ class PtpCamera(Camera):
     def _trigger_nikon(self) -> int:
         op = Op.NIKON_InitiateCaptureRecInSdram
         self._check(self._transaction(op, (_NIKON_NO_AF,)), op)
-        deadline, pause = time.monotonic() + self.timeout, 0.001
+        deadline, pause = time.monotonic() + self._capture_wait, 0.001
         while self._transaction(Op.NIKON_DeviceReady, retry_busy=False).code == RC.DeviceBusy:
             if time.monotonic() >= deadline:
                 raise CameraBusy(f"{self.name}: still busy {self.timeout:g} s after "
@@ -678,8 +723,13 @@ class PtpCamera(Camera):
 
     def _download(self, handles: list[int]) -> CapturedImage:
         handle, info = self._pick_image(handles)
+        if info.compressed_size != 0xFFFFFFFF and info.compressed_size > MAX_OBJECT:
+            raise CameraProtocolError(f"{self.name}: object {info.filename!r} (handle "
+                                      f"0x{handle:08X}) claims {info.compressed_size} bytes, more "
+                                      f"than the {MAX_OBJECT} psrig downloads; it stays on the camera")
+        limit = MAX_OBJECT if info.compressed_size == 0xFFFFFFFF else info.compressed_size
         for attempt in range(1 + self.get_object_retries):
-            data = self._data(Op.GetObject, handle)
+            data = self._data(Op.GetObject, handle, limit=limit)
             if len(data) == info.compressed_size or info.compressed_size == 0xFFFFFFFF:
                 break
             log.warning("%s: %s arrived with %d of %d bytes (attempt %d)", self.name,
@@ -743,6 +793,8 @@ class PtpCamera(Camera):
             record = setter(key, exposure[key], want)
             report[key] = {"requested": exposure[key], **record}
             log.info("%s: exposure.%s set to %s", self.name, key, record["display"])
+            if key == "shutter":
+                self.shutter_seconds = float(record["value"] or 0.0)
         return report
 
     def _exposure_error(self, key, requested, message):

@@ -51,10 +51,14 @@ import numpy as np
 from pipeline.errors import PsrigError, SessionError
 from pipeline.progress import progress as progress_bar
 from pipeline.session import FOLDERS, MANIFEST, Session, now_iso
-from rig.camera import CameraError, format_exposure, make_camera
-from rig.lights import LightError, make_light_controller
+from rig.camera import CameraError, format_exposure
+from rig.drivers import make_camera, make_light_controller
+from rig.keepalive import LightHold
+from rig.lights import LightError
+from rig.rawtype import RawTypeError, raw_extension
 
 __all__ = ["capture_session", "plan_frames", "check_raw_file", "CaptureError", "CaptureInterrupted",
+           "open_devices", "set_camera_exposure", "set_light_levels", "preview_check",
            "Shot", "PARTIAL", "SPHERE_PROMPT", "OUTLINE_PROMPT",
            "MANIFEST_INTERVAL"]
 
@@ -98,6 +102,7 @@ class Shot:
     kind: str
     light: int | None = None
     extra: dict = field(default_factory=dict)
+    shutter: str | None = None  # a bracketed shot's shutter time, as the rig file writes it
 
 
 @dataclass
@@ -121,13 +126,26 @@ def plan_frames(rig_config, sphere=True):
         plan += [Shot(f"sphere_{i:03d}", "sphere", i) for i in range(count)]
         if frames.get("outline", False):
             plan.append(Shot("outline_000", "outline"))
-    return plan
+    return _bracketed(plan, rig_config.exposure.get("bracket"))
+
+
+def _bracketed(plan, bracket):
+    """Each shot once per shutter of ``bracket`` (None: the plan as it is), one light's
+    exposures one after the other: ids ``<id>_b<n>``, the group (the unbracketed id), the
+    index and the shutter recorded in each frame's ``bracket``."""
+    if not bracket:
+        return plan
+    return [Shot(f"{shot.frame_id}_b{n}", shot.kind, shot.light,
+                 {**shot.extra, "bracket": {"group": shot.frame_id, "index": n,
+                                            "shutter": str(value), "of": len(bracket)}},
+                 shutter=str(value))
+            for shot in plan for n, value in enumerate(bracket)]
 
 
 # -- the entry point ------------------------------------------------------------------------------
 
 def capture_session(target, rig_config, *, resume=False, sim=None, progress=True, sphere=None,
-                    on_prompt=None, echo=print):
+                    on_prompt=None, echo=print, preview=False, max_clipped=None):
     """Capture (or, with ``resume``, complete) a session on a rig.
 
     Parameters
@@ -151,6 +169,10 @@ def capture_session(target, rig_config, *, resume=False, sim=None, progress=True
         False skips the sphere frames. Default: a terminal prompt.
     echo : callable
         Receives one line per event (resume summary, adopted files, total time).
+    preview : bool
+        Before the first lit frame of a session, preview the brightest light and refuse to
+        start when it clips more than ``max_clipped`` (default the rig's
+        ``preview: max_clipped``); ``psrig capture`` turns it on unless told not to.
 
     Returns
     -------
@@ -159,9 +181,15 @@ def capture_session(target, rig_config, *, resume=False, sim=None, progress=True
     start = time.perf_counter()
     sphere = bool(rig_config.frames.get("sphere", True) if sphere is None else sphere)
     session, root = _existing_session(target, rig_config, resume)
-    with _open_devices(rig_config, sim) as devices, _sigterm_as_interrupt():
-        devices.exposure = _set_exposure(rig_config, devices, echo)
+    with open_devices(rig_config, sim) as devices, _sigterm_as_interrupt():
+        devices.exposure = set_camera_exposure(rig_config, devices, echo)
+        set_light_levels(rig_config, devices, echo)
+        checked = None
+        if preview and not (session and any(f.get("light") is not None for f in session.frames())):
+            checked = preview_check(rig_config, devices, max_clipped, echo)
         session = session or Session.create(root)
+        if checked is not None:
+            session.manifest["rig"]["preview"] = checked
         _record_rig(session, rig_config, devices, echo, devices.exposure)
         if devices.sim is not None and not _truth_complete(session):
             devices.sim.write_truth(session)
@@ -222,9 +250,9 @@ def _clear_stillborn(root):
 # -- devices ------------------------------------------------------------------------------------
 
 @contextmanager
-def _open_devices(rig_config, sim):
+def open_devices(rig_config, sim):
     """Yield the opened lights and camera (of ``sim``, a new simulated rig, or the hardware)."""
-    if sim is None and rig_config.is_simulated:
+    if sim is None and rig_config.simulated_camera:
         from rig.sim.rig import SimulatedRig  # the simulator stays out of real rigs' imports
 
         sim = SimulatedRig(rig_config)
@@ -238,9 +266,6 @@ def _open_devices(rig_config, sim):
             if owned:
                 sim.close()
         return
-    if rig_config.camera.get("driver") == "sim":
-        raise CaptureError(f"{rig_config.source}: rig '{rig_config.name}': camera.driver: a simulated "
-                           "camera needs simulated lights too (lights.driver: sim)")
     try:
         lights, camera = make_light_controller(rig_config.lights), make_camera(dict(rig_config.camera))
     except (LightError, CameraError) as exc:
@@ -268,12 +293,15 @@ def _sigterm_as_interrupt():
 
 # -- the manifest ---------------------------------------------------------------------------------
 
-def _set_exposure(rig_config, devices, echo):
+def set_camera_exposure(rig_config, devices, echo):
     """Set the rig's ``exposure:`` on the camera (before any frame); what it reported back."""
     if not rig_config.exposure:
         return {}
+    exposure = {k: v for k, v in rig_config.exposure.items() if k != "bracket"}
+    if rig_config.exposure.get("bracket"):
+        exposure["shutter"] = rig_config.exposure["bracket"][0]
     try:
-        report = devices.camera.set_exposure(dict(rig_config.exposure))
+        report = devices.camera.set_exposure(exposure)
     except CameraError as exc:
         raise CaptureError(f"{rig_config.source}: rig '{rig_config.name}': {exc}; nothing was "
                            "captured") from exc
@@ -282,9 +310,44 @@ def _set_exposure(rig_config, devices, echo):
     return report
 
 
+def preview_check(rig_config, devices, max_clipped=None, echo=print):
+    """Preview the rig's brightest light (or ``preview: light``); PreviewError when it clips
+    more than ``max_clipped`` (default the rig's). Returns what to record in the manifest."""
+    from rig.preview import brightest_light, check_clipping, take_preview
+
+    limit = rig_config.preview["max_clipped"] if max_clipped is None else float(max_clipped)
+    light = rig_config.preview.get("light", "auto")
+    light = brightest_light(rig_config) if light == "auto" else int(light)
+    shutter = (devices.exposure.get("shutter") or {}).get("value")
+    (stats,) = take_preview(devices, [light], shutter=shutter)
+    check_clipping(stats, limit)
+    channel, share = stats.worst_clipped
+    echo(f"capture: preview of light {light}: at most {100 * share:.2f} % clipped ({channel}), "
+         f"allowed {100 * limit:.2f} %")
+    return {"light": light, "clipped": stats.clipped, "max_clipped": limit,
+            "percentile_99_9": {c: v[99.9] for c, v in stats.percentiles.items()},
+            "focus": round(stats.focus, 6)}
+
+
+def set_light_levels(rig_config, devices, echo):
+    """``LEVEL i v`` for every light of the rig's ``lights: levels:`` (before any frame)."""
+    levels = rig_config.lights.get("levels")
+    if levels is None:
+        return
+    try:
+        for index, level in enumerate(levels):
+            devices.lights.set_level(index, int(level))
+    except LightError as exc:
+        raise CaptureError(f"{rig_config.source}: rig '{rig_config.name}': lights.levels: {exc}; "
+                           "nothing was captured") from exc
+    dark = [i for i, level in enumerate(levels) if level == 0]
+    echo(f"capture: light levels set ({min(levels)}-{max(levels)} of 255)"
+         + (f"; lights {', '.join(map(str, dark))} at level 0 will give dark frames" if dark else ""))
+
+
 def _frame_exposure(rig_config, exposure):
     """A frame's ``exposure`` entry: the values the camera reported (the request where unset)."""
-    out = dict(rig_config.exposure)
+    out = {k: v for k, v in rig_config.exposure.items() if k != "bracket"}
     for key, rec in exposure.items():
         value = rec["value"]
         if key == "shutter":
@@ -321,6 +384,7 @@ def _record_rig(session, rig_config, devices, echo, exposure=None):
     session.manifest["lights"].update({
         "source": "nominal", "origin": f"rig '{rig_config.name}' ({rig_config.source})",
         "count": int(lights.count), "directions": np.round(lights.directions, 8).tolist(),
+        "levels": None if lights.get("levels") is None else [int(v) for v in lights.levels],
         "positions": None if lights.get("positions") is None
         else np.round(np.asarray(lights.positions, float), 6).tolist()})
     session.save()
@@ -344,6 +408,7 @@ def _truth_complete(session):
 
 def _reconcile(session, rig_config, plan, echo):
     """Check and repair the session before capturing; returns the shots still to take."""
+    _refuse_links(session)
     for folder in (session.root, session.path("raw"), session.path("truth")):
         for path in folder.glob(".*.tmp*") if folder.is_dir() else ():
             if path.is_file() and _TEMP_FILE.match(path.name):
@@ -361,6 +426,19 @@ def _reconcile(session, rig_config, plan, echo):
         echo(f"capture: {session.root}: {len(plan) - len(todo)} of {len(plan)} frames present and "
              f"verified, {len(todo)} to capture")
     return todo
+
+
+def _refuse_links(session):
+    """psrig writes raw files itself, never through a link: any symbolic link in raw/ (an
+    orphan pointing nowhere above all, which a write would silently replace) is refused."""
+    raw = session.root / "raw"
+    for path in sorted(raw.iterdir()) if raw.is_dir() and not raw.is_symlink() else ():
+        if path.is_symlink():
+            target = os.readlink(path)
+            state = "which does not exist (an orphan link)" if not path.exists() else "a link"
+            raise CaptureError(f"{session.root}: raw/{path.name} is a symbolic link to {target}, "
+                               f"{state}; raw files are written by psrig, never through links: "
+                               "remove it (or put the real file back in its place), then resume")
 
 
 def _adopt_orphans(session, plan, echo):
@@ -493,11 +571,8 @@ def _capture_one(session, rig_config, devices, shot):
     if devices.sim is not None:
         devices.sim.before_frame(shot.frame_id, shot.kind)
     try:
-        if shot.light is None:
-            devices.lights.off()
-        else:
-            devices.lights.on(shot.light)
-        image = devices.camera.capture()
+        _set_shutter(devices, shot)
+        image = _expose_held(devices, shot, what)
     except (LightError, CameraError) as exc:
         dark = ("the lights are switched off" if getattr(devices.lights, "is_open", True)
                 else "the light controller is gone (its watchdog switches the lights off)")
@@ -508,11 +583,67 @@ def _capture_one(session, rig_config, devices, shot):
     if image.size != len(image.data):
         raise CaptureError(f"{session.root}: {what}: the camera delivered {len(image.data)} of "
                            f"{image.size} bytes; not stored", shot.frame_id, shot.light)
-    suffix = Path(image.filename).suffix.lower() or f".{rig_config.raw_format}"
+    try:  # psrig names the file: the camera's name is only metadata (it may hold anything)
+        suffix = "." + raw_extension(image.data, rig_config.raw_format)
+    except RawTypeError as exc:
+        raise CaptureError(f"{session.root}: {what}: the camera delivered a file "
+                           f"({_printable(image.filename)}) that is {exc}; not stored",
+                           shot.frame_id, shot.light) from None
+    levels = rig_config.lights.get("levels")
+    extra = dict(shot.extra)
+    if levels is not None and shot.light is not None:
+        extra["level"] = int(levels[shot.light])
     session.add_frame(shot.kind, image.data, light=shot.light, suffix=suffix, frame_id=shot.frame_id,
                       save=False, exposure=_frame_exposure(rig_config, devices.exposure),
                       captured_at=now_iso(),
-                      camera_file=image.filename, **shot.extra)
+                      camera_file=_printable(image.filename), **extra)
+
+
+def _set_shutter(devices, shot):
+    """Set a bracketed shot's shutter on the camera when it differs from the one set."""
+    current = (devices.exposure.get("shutter") or {}).get("requested")
+    if shot.shutter is None or str(current) == shot.shutter:
+        return
+    report = devices.camera.set_exposure({"shutter": shot.shutter})
+    devices.exposure = {**devices.exposure, **report}
+
+
+def _printable(name):
+    """The camera's file name as manifest metadata: control characters escaped, bounded."""
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(name))
+    return text[:200]
+
+
+#: Exposures of a frame whose light did not hold (watchdog, interlock) before it is refused.
+LIGHT_ATTEMPTS = 2
+
+
+def _expose_held(devices, shot, what):
+    """Light ``shot.light`` (or all off), expose with the light held, download; the image.
+
+    A frame whose light was not lit all through the exposure is shot again once, then refused
+    (:class:`rig.lights.LightError` naming the frame), never stored.
+    """
+    problems = []
+    for _ in range(LIGHT_ATTEMPTS):
+        if shot.light is None:
+            devices.lights.off()
+        else:
+            devices.lights.on(shot.light)
+        with LightHold(devices.lights, shot.light, _longest_wait(devices)) as hold:
+            image = devices.camera.capture()
+        problem = hold.problem()
+        if problem is None:
+            return image
+        problems.append(problem)
+    raise LightError(f"{what}: {'; then '.join(problems)}; the frame was not stored "
+                     f"({LIGHT_ATTEMPTS} exposures)")
+
+
+def _longest_wait(devices):
+    """Real seconds an exposure may take at most: the camera's timeout plus the shutter."""
+    shutter = (devices.exposure.get("shutter") or {}).get("value") or 0.0
+    return float(getattr(devices.camera, "timeout", 30.0)) + float(shutter) + 5.0
 
 
 def _lights_off(lights, raise_errors):

@@ -22,6 +22,7 @@ shine at, default the origin), ``lp`` (an RTI .lp file, relative to the rig file
 (lists of {elevation, count, azimuth} in degrees, elevation above the image plane).
 """
 
+import functools
 import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -29,28 +30,28 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from pipeline.errors import InputError, PsrigError
+from pipeline.errors import InputError
 from pipeline.lightsio import LightSet, read_lp
 from pipeline.yamlio import plain
+from rig import checks
+from rig.checks import ConfigError
+from rig.drivers import SHARED_LIGHT_KEYS, camera_driver, light_driver
 
 __all__ = ["ConfigError", "RigConfig", "Section", "LightsConfig", "CameraConfig", "FramesConfig",
            "load_rigs", "get_rig", "find_rigs_file", "parse_rigs", "default_rig_name", "ring_directions",
-           "SIM_RINGS", "RAW_FORMATS", "CAMERA_PATHS"]
+           "builtin_rigs", "exposure_shutters", "SIM_RIGS_FILE", "RAW_FORMATS", "CAMERA_PATHS",
+           "PREVIEW_DEFAULTS"]
 
 RAW_FORMATS = ("dng", "cr2", "cr3", "nef", "nrw", "arw", "raf", "orf", "rw2", "pef")
 CAMERA_PATHS = ("generic", "canon", "nikon", "auto")
-SIM_RINGS = ({"elevation": 30, "count": 8, "azimuth": 0.0},
-             {"elevation": 45, "count": 8, "azimuth": 22.5},
-             {"elevation": 60, "count": 8, "azimuth": 0.0},
-             {"elevation": 75, "count": 8, "azimuth": 22.5})
-"""The sim rig's 32 lights: four rings of 8, alternate rings turned by half a step."""
+SIM_RIGS_FILE = Path(__file__).resolve().parent / "sim" / "rigs.yaml"
+"""The simulated rigs (``sim``, ``sim-near``): always defined; a rig file may override them."""
+PREVIEW_DEFAULTS = {"check": True, "max_clipped": 0.01, "light": "auto"}
+"""A rig's ``preview:``: capture first previews its brightest light and refuses to start when
+more than ``max_clipped`` of any colour channel's photosites are clipped (see rig.preview)."""
 
 _PACKAGE_DIR = Path(__file__).resolve().parent
 _ENV_VAR = "PSRIG_RIGS"
-
-
-class ConfigError(PsrigError):
-    """A rig file or rig definition is invalid; the message names the file, rig and key."""
 
 
 class Section(dict):
@@ -68,19 +69,16 @@ class Section(dict):
 
 
 class LightsConfig(Section):
-    """A rig's ``lights:`` section (see :func:`rig.lights.make_light_controller`).
+    """A rig's ``lights:`` section (see :func:`rig.drivers.make_light_controller`).
 
     Always holds ``driver``, ``count``, ``directions`` (K, 3) unit vectors toward the lights
-    (camera frame), ``positions`` (K, 3) or None, and the serial options with their defaults.
+    (camera frame), ``positions`` (K, 3) or None, ``levels`` (K ints 0-255, or None: leave the
+    controller's), ``lp`` (path or None) and the driver's own keys with their defaults.
     """
-
-    DEFAULTS = {"port": None, "baudrate": 115200, "protocol": "psrig-1", "timeout": 1.0,
-                "write_timeout": 1.0, "reset_delay": 2.0, "retries": 1, "positions": None,
-                "lp": None, "watchdog": 5.0, "boot_delay": 0.0}
 
 
 class CameraConfig(Section):
-    """A rig's ``camera:`` section, exactly the keys given (what :func:`rig.camera.make_camera` takes)."""
+    """A rig's ``camera:`` section: ``driver`` and the driver's own keys (what it builds from)."""
 
 
 class FramesConfig(Section):
@@ -92,7 +90,8 @@ class FramesConfig(Section):
 
 @dataclass
 class RigConfig:
-    """One validated rig. ``exposure`` and ``scene`` are free dicts; ``source`` the rig file."""
+    """One validated rig. ``exposure``, ``scene`` and ``preview`` are dicts; ``source`` the rig
+    file."""
 
     name: str
     lights: LightsConfig
@@ -102,12 +101,18 @@ class RigConfig:
     raw_format: str = "dng"
     description: str = ""
     scene: dict = field(default_factory=dict)
+    preview: dict = field(default_factory=lambda: dict(PREVIEW_DEFAULTS))
     source: str = "(built in)"
 
     @property
     def is_simulated(self):
         """True when neither lights nor camera need hardware."""
         return self.lights.driver == "sim" and self.camera.driver == "sim"
+
+    @property
+    def simulated_camera(self):
+        """True when the camera is simulated (the simulated rig renders what it sees)."""
+        return self.camera.driver == "sim"
 
     def __getitem__(self, key):
         if key not in {f.name for f in fields(self)}:
@@ -124,76 +129,14 @@ class RigConfig:
                         source=f"nominal, rig '{self.name}' ({self.source})")
 
 
-# -- value checkers: each returns the clean value or raises ValueError(what was expected) -------
+def exposure_shutters(exposure):
+    """The shutter times (s) a rig's ``exposure:`` shoots each frame at: the ``bracket`` list,
+    else ``[shutter]``, else ``[]`` (the camera's own)."""
+    from rig.exposure import parse_shutter
 
-def _int(low=None, high=None):
-    def check(value):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ValueError("expected an integer")
-        if (low is not None and value < low) or (high is not None and value > high):
-            raise ValueError(f"expected an integer >= {low}" if high is None
-                             else f"expected an integer from {low} to {high}")
-        return value
-    return check
-
-
-def _number(low=0.0):
-    def check(value):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError("expected a number")
-        if not np.isfinite(value) or value < low:
-            raise ValueError(f"expected a number >= {low:g}")
-        return float(value)
-    return check
-
-
-def _usb_id(value):
-    if isinstance(value, str):
-        try:
-            value = int(value, 16)
-        except ValueError:
-            raise ValueError("expected a USB id (an integer, or hex like 0x04a9)") from None
-    return _int(0, 0xFFFF)(value)
-
-
-def _text(value):
-    if not isinstance(value, str) or not value.strip():
-        raise ValueError("expected a non-empty string")
-    return value
-
-
-def _choice(*options):
-    def check(value):
-        if value not in options:
-            raise ValueError(f"expected one of {', '.join(map(str, options))}")
-        return value
-    return check
-
-
-def _boolean(value):
-    if not isinstance(value, bool):
-        raise ValueError("expected true or false")
-    return value
-
-
-def _mapping(value):
-    if not isinstance(value, dict):
-        raise ValueError("expected a mapping of keys to values")
-    return dict(value)
-
-
-def _vectors(value):
-    try:
-        array = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError("expected lists of 3 numbers (x, y, z)") from None
-    if array.ndim != 2 or array.shape[1] != 3 or len(array) == 0 or not np.isfinite(array).all():
-        raise ValueError("expected lists of 3 numbers (x, y, z)")
-    return array
-
-
-def _vector(value):
-    return _vectors([value])[0]
+    if exposure.get("bracket"):
+        return [parse_shutter(v) for v in exposure["bracket"]]
+    return [parse_shutter(exposure["shutter"])] if exposure.get("shutter") is not None else []
 
 
 def _rings(value):
@@ -203,25 +146,28 @@ def _rings(value):
         if not isinstance(ring, dict) or not {"elevation", "count"} <= set(ring) \
                 or not set(ring) <= {"elevation", "count", "azimuth"}:
             raise ValueError("expected a list of {elevation, count, azimuth}")
-        _number(-90.0)(ring["elevation"])
-        _int(1)(ring["count"])
-        _number(-360.0)(ring.get("azimuth", 0.0))
+        checks.number(-90.0)(ring["elevation"])
+        checks.integer(1)(ring["count"])
+        checks.number(-360.0)(ring.get("azimuth", 0.0))
     return value
 
 
-_LIGHT_KEYS = {
-    "driver": _text, "port": _text, "baudrate": _int(1), "protocol": _choice("psrig-1"),
-    "count": _int(1, 4096), "timeout": _number(), "write_timeout": _number(),
-    "reset_delay": _number(), "retries": _int(0, 10), "directions": _vectors,
-    "positions": _vectors, "target": _vector, "lp": _text, "rings": _rings,
-    "watchdog": _number(), "boot_delay": _number(),
-}
-_CAMERA_KEYS = {"driver": _choice("ptp", "sim"), "vendor_id": _usb_id, "product_id": _usb_id,
-                "path": _choice(*CAMERA_PATHS), "timeout": _number(), "busy_retries": _int(0, 100),
-                "chunk_size": _int(512), "delete_after_download": _boolean,
-                "busy_backoff": _number()}
-_FRAME_KEYS = {"dark": _int(0, 1000), "ambient": _int(0, 1000), "sphere": _boolean, "outline": _boolean}
-_RIG_KEYS = ("description", "lights", "camera", "exposure", "frames", "raw_format", "scene")
+def _levels(value):
+    if not isinstance(value, list) or not value:
+        raise ValueError("expected a list of levels 0-255, one per light")
+    return [checks.integer(0, 255)(v) for v in value]
+
+
+_LIGHT_KEYS = {"driver": checks.text, "count": checks.integer(1, 4096),
+               "directions": checks.vectors, "positions": checks.vectors,
+               "target": checks.vector, "lp": checks.text, "rings": _rings, "levels": _levels}
+assert set(_LIGHT_KEYS) == set(SHARED_LIGHT_KEYS)
+_FRAME_KEYS = {"dark": checks.integer(0, 1000), "ambient": checks.integer(0, 1000),
+               "sphere": checks.boolean, "outline": checks.boolean}
+_PREVIEW_KEYS = {"check": checks.boolean, "max_clipped": checks.number(0.0),
+                 "light": lambda v: v if v == "auto" else checks.integer(0)(v)}
+_RIG_KEYS = ("description", "lights", "camera", "exposure", "frames", "raw_format", "scene",
+             "preview")
 _GEOMETRY = ("directions", "positions", "lp", "rings")
 
 
@@ -260,6 +206,13 @@ class _Checker:
                 self.fail(f"{section}.{key}", "missing")
         return {key: self.value(f"{section}.{key}", schema[key], value)
                 for key, value in data.items() if value is not None}
+
+    def driver(self, section, lookup, name):
+        """The driver ``name`` of ``section`` (its lookup error named by the key)."""
+        try:
+            return lookup(name)
+        except ConfigError as exc:
+            self.fail(f"{section}.driver", str(exc))
 
     def value(self, key, checker, value):
         try:
@@ -303,44 +256,88 @@ def _geometry(check, lights, base_dir):
 
 
 def _lights(check, data, base_dir):
-    lights = check.section(data, "lights", _LIGHT_KEYS, required=("driver",))
-    from rig.lights import LIGHT_DRIVERS  # lazily: rig.lights imports pyserial
-
-    if lights["driver"] not in LIGHT_DRIVERS:
-        check.fail("lights.driver", f"unknown light driver {lights['driver']!r} "
-                                    f"(known: {', '.join(sorted(LIGHT_DRIVERS))})")
-    if lights["driver"] != "sim" and "port" not in lights:
-        check.fail("lights.port", f"missing (the {lights['driver']!r} driver needs a serial port)")
-    if "rings" not in lights and check.name == "sim" and not set(_GEOMETRY) & set(lights):
-        lights["rings"] = list(SIM_RINGS)
-    return LightsConfig({**LightsConfig.DEFAULTS, **_geometry(check, lights, base_dir)})
+    if not isinstance(data, dict):
+        check.fail("lights", f"expected a mapping of keys, got {data!r}")
+    shared = {key: value for key, value in data.items() if key in _LIGHT_KEYS}
+    lights = check.section(shared, "lights", _LIGHT_KEYS, required=("driver",))
+    driver = check.driver("lights", light_driver, lights["driver"])
+    own = driver.validate({k: v for k, v in data.items() if k not in _LIGHT_KEYS},
+                          lambda key, message: check.fail(f"lights.{key}", message))
+    lights = _geometry(check, lights, base_dir)
+    levels = lights.get("levels")
+    if levels is not None and len(levels) != lights["count"]:
+        check.fail("lights.levels", f"{len(levels)} levels for {lights['count']} lights")
+    return LightsConfig({"lp": None, "levels": None, **own, **lights})
 
 
 def _camera(check, data):
-    camera = check.section(data, "camera", _CAMERA_KEYS, required=("driver",))
-    if camera["driver"] == "ptp":
-        for key in ("vendor_id", "product_id"):
-            if key not in camera:
-                check.fail(f"camera.{key}", "missing (a PTP camera is found by its USB ids)")
-    return CameraConfig(camera)
+    if not isinstance(data, dict):
+        check.fail("camera", f"expected a mapping of keys, got {data!r}")
+    name = check.value("camera.driver", checks.text, data.get("driver"))
+    driver = check.driver("camera", camera_driver, name)
+    own = driver.validate({k: v for k, v in data.items() if k != "driver"},
+                          lambda key, message: check.fail(f"camera.{key}", message))
+    return CameraConfig({"driver": name, **own})
+
+
+def _combination(check, rig):
+    """Refuse driver combinations that cannot work, and exposures a light cannot cover."""
+    lights = light_driver(rig.lights.driver)
+    if rig.simulated_camera and not lights.reports_lit:
+        check.fail("camera.driver", f"a simulated camera renders the light its controller "
+                   f"reports lit; the {lights.name!r} light driver does not report it "
+                   "(use lights.driver: sim, or a real camera)")
+    if rig.scene and not rig.simulated_camera:
+        check.fail("scene", "only a simulated camera (camera.driver: sim) has a scene")
+    if rig.name in ("sim", "sim-near") and not rig.is_simulated:
+        check.fail("lights.driver" if rig.lights.driver != "sim" else "camera.driver",
+                   f"the rig '{rig.name}' must need no hardware (driver: sim)")
+    watchdog = lights.watchdog(rig.lights)
+    longest = max(exposure_shutters(rig.exposure), default=0.0)
+    if watchdog and longest >= watchdog and not lights.keepalive:
+        check.fail("exposure.bracket" if rig.exposure.get("bracket") else "exposure.shutter",
+                   f"{longest:g} s exposures outlast the {watchdog:g} s watchdog of the "
+                   f"{lights.name!r} light controller, which cannot be kept alive: its light "
+                   "would go out during the exposure")
 
 
 def _exposure(check, data):
-    """The ``exposure:`` section: shutter (s), iso, aperture (f-number), each parseable.
+    """The ``exposure:`` section: shutter (s) or bracket (a list of shutters), iso, aperture
+    (f-number), each parseable.
 
     Values stay as written (e.g. '1/30'): the camera driver matches them to what it allows.
     """
-    from rig.exposure import EXPOSURE_KEYS, PARSERS
+    from rig.exposure import EXPOSURE_KEYS, PARSERS, parse_shutter
 
-    exposure = check.value("exposure", _mapping, data)
+    exposure = check.value("exposure", checks.mapping, data)
     for key, value in exposure.items():
+        if key == "bracket":
+            _bracket(check, exposure)
+            continue
         if key not in PARSERS:
-            check.fail(f"exposure.{key}", f"unknown key (known: {', '.join(EXPOSURE_KEYS)})")
+            check.fail(f"exposure.{key}", f"unknown key (known: {', '.join(EXPOSURE_KEYS)}, bracket)")
         try:
             PARSERS[key](value)
         except ValueError as exc:
             check.fail(f"exposure.{key}", str(exc).split(": ", 1)[-1])
     return exposure
+
+
+def _bracket(check, exposure):
+    from rig.exposure import parse_shutter
+
+    bracket = exposure["bracket"]
+    if "shutter" in exposure:
+        check.fail("exposure.bracket", "give shutter or bracket, not both")
+    if not isinstance(bracket, list) or len(bracket) < 2:
+        check.fail("exposure.bracket", f"expected a list of 2 or more shutter times (e.g. "
+                                       f"[1/60, 1/15]), got {bracket!r}")
+    try:
+        seconds = [parse_shutter(value) for value in bracket]
+    except ValueError as exc:
+        check.fail("exposure.bracket", str(exc).split(": ", 1)[-1])
+    if len(set(seconds)) != len(seconds):
+        check.fail("exposure.bracket", f"the same shutter time twice in {bracket!r}")
 
 
 def _rig(source, name, data, base_dir):
@@ -360,23 +357,13 @@ def _rig(source, name, data, base_dir):
         exposure=_exposure(check, data.get("exposure") or {}),
         frames=FramesConfig({**FramesConfig.DEFAULTS,
                              **check.section(data.get("frames") or {}, "frames", _FRAME_KEYS)}),
-        raw_format=check.value("raw_format", _choice(*RAW_FORMATS), data.get("raw_format", "dng")),
+        raw_format=check.value("raw_format", checks.choice(*RAW_FORMATS), data.get("raw_format", "dng")),
         description=check.value("description", str, data.get("description") or ""),
-        scene=check.value("scene", _mapping, data.get("scene") or {}))
-    if name == "sim" and not rig.is_simulated:
-        check.fail("lights.driver" if rig.lights.driver != "sim" else "camera.driver",
-                   "the rig 'sim' must need no hardware (driver: sim)")
+        scene=check.value("scene", checks.mapping, data.get("scene") or {}),
+        preview={**PREVIEW_DEFAULTS,
+                 **check.section(data.get("preview") or {}, "preview", _PREVIEW_KEYS)})
+    _combination(check, rig)
     return rig
-
-
-SIM_DEFINITION = {
-    "description": "simulated dome: 32 lights on 4 rings, simulated PTP camera; no hardware",
-    "lights": {"driver": "sim", "count": 32, "rings": [dict(r) for r in SIM_RINGS]},
-    "camera": {"driver": "sim", "path": "generic"},
-    "frames": {"dark": 1, "ambient": 0, "sphere": True},
-    "raw_format": "dng",
-}
-"""The ``sim`` rig used when the rig file does not define one."""
 
 
 # -- the file ------------------------------------------------------------------------------------
@@ -401,22 +388,23 @@ _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _n
 def find_rigs_file(path=None):
     """The rig file to read: ``path``; else $PSRIG_RIGS; else ./rigs.yaml; else the shipped one.
 
-    The shipped one is the repository's ``rigs.yaml`` beside the ``rig`` package when present
-    (an editable install), else ``rig/rigs_default.yaml``. Returns None when there is none.
+    The shipped one is the repository's ``rigs.yaml`` (examples of real rigs) beside the
+    ``rig`` package when present (an editable install). Returns None when there is none: the
+    simulated rigs are defined all the same.
     """
     if path is not None:
         return Path(path)
     if os.environ.get(_ENV_VAR):
         return Path(os.environ[_ENV_VAR])
-    for candidate in (Path.cwd() / "rigs.yaml", _PACKAGE_DIR.parent / "rigs.yaml",
-                      _PACKAGE_DIR / "rigs_default.yaml"):
+    for candidate in (Path.cwd() / "rigs.yaml", _PACKAGE_DIR.parent / "rigs.yaml"):
         if candidate.is_file():
             return candidate
     return None
 
 
 def parse_rigs(text, source="rigs.yaml", base_dir=None):
-    """Validate rig-file text; returns {name: RigConfig}, always including ``sim``.
+    """Validate rig-file text; returns {name: RigConfig}, always including the simulated
+    rigs of :data:`SIM_RIGS_FILE` (``sim``, ``sim-near``) unless the text redefines them.
 
     ``source`` names the file in messages; ``base_dir`` resolves relative ``lp`` paths.
     """
@@ -440,18 +428,28 @@ def parse_rigs(text, source="rigs.yaml", base_dir=None):
         if not isinstance(name, str) or not name.strip() or any(c.isspace() for c in name):
             raise ConfigError(f"{source}: rigs: {name!r} is not a valid rig name (no spaces)")
         rigs[name] = _rig(source, name, rig_data, base_dir)
-    if "sim" not in rigs:
-        rigs["sim"] = _rig("(built in)", "sim", SIM_DEFINITION, None)
+    if source != str(SIM_RIGS_FILE):  # the simulated rigs, unless this file redefines them
+        rigs.update({name: rig for name, rig in builtin_rigs().items() if name not in rigs})
     default = data.get("default")
     if default is not None and default not in rigs:
         raise ConfigError(f"{source}: default: no rig named {default!r} (rigs: {', '.join(rigs)})")
     return rigs
 
 
+@functools.lru_cache(maxsize=1)
+def _builtin_rig_text():
+    return SIM_RIGS_FILE.read_text(encoding="utf-8")
+
+
+def builtin_rigs():
+    """The simulated rigs shipped with psrig (``rig/sim/rigs.yaml``): {name: RigConfig}."""
+    return parse_rigs(_builtin_rig_text(), source=str(SIM_RIGS_FILE), base_dir=SIM_RIGS_FILE.parent)
+
+
 def load_rigs(path=None):
     """Load and validate a rig file (see :func:`find_rigs_file`); returns {name: RigConfig}.
 
-    The rig ``sim`` is always present, even without any file.
+    The simulated rigs are always present, even without any file.
     """
     found = find_rigs_file(path)
     if found is None:

@@ -18,13 +18,15 @@ once when its reply times out or arrives corrupted, and never assumes a light is
 ``OK``. Used as a context manager it switches every light off on the way out, even when the
 block raised.
 
-Other controllers plug in by subclassing :class:`LightController` and registering a factory in
-:data:`LIGHT_DRIVERS` under the ``driver`` name that rigs.yaml uses.
+Other controllers plug in by subclassing :class:`LightController` and registering a
+:class:`rig.drivers.LightDriver` under the ``driver`` name that rigs.yaml uses (built in, or a
+``psrig.lights`` entry point); :func:`rig.drivers.make_light_controller` builds them.
 """
 
 import abc
 import operator
 import re
+import threading
 import time
 
 import serial
@@ -35,12 +37,15 @@ __all__ = [
     "LightError", "LightConnectionError", "LightTimeout", "LightProtocolError",
     "LightCommandError", "LightIndexError", "LightInterlockError",
     "LightController", "SerialLightController", "SimLightController",
-    "LIGHT_DRIVERS", "make_light_controller", "PROTOCOL_VERSION",
+    "PROTOCOL_VERSION",
 ]
 
 PROTOCOL_VERSION = 1
-_ID_REPLY = re.compile(r"PSRIG-LIGHTS (\d+) (\d+)")
-_ERR_REPLY = re.compile(r"ERR (\d+)(?: (.*))?")
+MAX_REPLY = 128  # bytes: protocol replies are under 90; a longer line is noise or a flood
+# numbers are bounded as the sketch's are (at most 4 digits): int() never meets a huge one
+_ID_REPLY = re.compile(r"PSRIG-LIGHTS (\d{1,4}) (\d{1,4})")
+_ERR_REPLY = re.compile(r"ERR (\d{1,3})(?: (.*))?")
+_TOO_LONG = object()  # what _exchange returns for a reply line over MAX_REPLY bytes
 
 
 class LightError(PsrigError):
@@ -86,6 +91,17 @@ class LightController(abc.ABC):
 
     count = None
     is_open = True  # drivers with a connection report whether it is still up
+    watchdog = None  # seconds of silence after which the controller darkens itself; None: never
+
+    @property
+    def keepalive_interval(self):
+        """Real seconds between keep-alives that hold a light through a long exposure, or None
+        when this controller has no watchdog (nothing to keep alive) or cannot be kept alive."""
+        return None
+
+    def keep_alive(self):
+        """Reset the controller's watchdog; returns the light it reports lit (None: all off)."""
+        raise LightError(f"{self}: this light controller cannot be kept alive")
 
     @abc.abstractmethod
     def open(self):
@@ -160,10 +176,16 @@ class SerialLightController(LightController):
         Extra attempts after a timed-out or corrupted reply (never after a definite ``ERR``).
     expected_count : int, optional
         Refuse a controller whose ``ID?`` reports another light count.
+    watchdog : float or None
+        The firmware's command watchdog, seconds (the protocol's is 5 s): during exposures
+        capture sends a keep-alive (``STATE?``) every :attr:`keepalive_interval` seconds.
     """
 
+    KEEPALIVE_SHARE = 0.2  # keep-alives per watchdog period: 5, so one lost reply is harmless
+    KEEPALIVE_MAX = 1.0    # seconds: "STATE? about every second" at the protocol's 5 s
+
     def __init__(self, port, *, baudrate=115200, timeout=1.0, write_timeout=1.0,
-                 reset_delay=2.0, retries=1, expected_count=None):
+                 reset_delay=2.0, retries=1, expected_count=None, watchdog=5.0):
         self.port = str(port)
         self.baudrate = int(baudrate)
         self.timeout = float(timeout)
@@ -171,9 +193,12 @@ class SerialLightController(LightController):
         self.reset_delay = float(reset_delay)
         self.retries = int(retries)
         self.expected_count = None if expected_count is None else int(expected_count)
+        self.watchdog = None if not watchdog else float(watchdog)
         self.count = None
         self.lit = None  # the light last confirmed on by its OK, or None
         self._serial = None
+        # capture's keep-alive thread and the main thread share the line: one exchange at a time
+        self._line_lock = threading.RLock()
 
     def __repr__(self):
         return f"{type(self).__name__}({self.port!r})"
@@ -262,8 +287,19 @@ class SerialLightController(LightController):
 
     def state(self):
         """The light the controller reports lit (``STATE?``), or None when all are off."""
-        match = self._transact("STATE?", re.compile(r"STATE (\d+|-)"))
+        match = self._transact("STATE?", re.compile(r"STATE (\d{1,4}|-)"))
         return None if match[1] == "-" else int(match[1])
+
+    @property
+    def keepalive_interval(self):
+        """Real seconds between keep-alives: a fifth of the watchdog, at most 1 s."""
+        if self.watchdog is None:
+            return None
+        return min(self.KEEPALIVE_MAX, self.KEEPALIVE_SHARE * self.watchdog)
+
+    def keep_alive(self):
+        """``STATE?``: any line resets the firmware's watchdog; returns the light it reports."""
+        return self.state()
 
     def identify(self):
         """Ask ``ID?`` again; returns (protocol version, light count)."""
@@ -289,9 +325,15 @@ class SerialLightController(LightController):
         attempts = 1 + (self.retries if retries is None else retries)
         problems = []
         for _ in range(attempts):
-            line = self._exchange(command, what)
+            with self._line_lock:
+                line = self._exchange(command, what)
             if line is None:
                 problems.append(f"no reply within {self.timeout:g} s")
+                continue
+            if line is _TOO_LONG:
+                problems.append(f"a reply of more than {MAX_REPLY} bytes without a line end "
+                                "(a flood of noise, or a device that does not speak psrig light "
+                                "protocol 1)")
                 continue
             match = pattern.fullmatch(line)
             if match:
@@ -305,14 +347,16 @@ class SerialLightController(LightController):
         try:
             self._serial.reset_input_buffer()  # a late reply to an earlier attempt is stale
             self._serial.write(command.encode("ascii") + b"\n")
-            raw = self._serial.readline()
+            # read_until bounds both the length and the total time (pyserial's readline would
+            # wait for a line end forever while bytes keep coming, its timeout being per read)
+            raw = self._serial.read_until(b"\n", MAX_REPLY + 1)
         except serial.SerialTimeoutException:
             return None
         except (serial.SerialException, OSError) as exc:
             self.close()
             raise LightConnectionError(f"{what}: the light controller disconnected ({exc})") from None
         if not raw.endswith(b"\n"):
-            return None
+            return _TOO_LONG if len(raw) > MAX_REPLY else None
         return raw.decode("ascii", errors="replace").strip()
 
     def _judge_reply(self, line, what, light, expected):
@@ -344,20 +388,34 @@ class SimLightController(SerialLightController):
         Use this firmware instead of making one; it is started here if needed and stopped on
         :meth:`close` only if this controller started it.
     watchdog, boot_delay : float
-        Passed to a firmware made here.
+        Passed to a firmware made here (simulated seconds).
     **options
         :class:`SerialLightController` options (timeout, retries, reset_delay ...).
+
+    Attributes
+    ----------
+    time_scale : float
+        Simulated seconds per real second of the firmware's clock: the keep-alive interval and
+        the wait for the board's boot are divided by it.
     """
 
     def __init__(self, count=32, *, firmware=None, watchdog=5.0, boot_delay=0.0, **options):
         from rig.sim.firmware import SimulatedLightFirmware  # the sim stays out of real rigs' imports
 
-        options.setdefault("reset_delay", boot_delay)
-        options.setdefault("expected_count", count)
         self.firmware = firmware or SimulatedLightFirmware(count, watchdog=watchdog,
                                                            boot_delay=boot_delay)
+        self.time_scale = self.firmware.clock.scale
+        options.setdefault("reset_delay", self.firmware.boot_delay / self.time_scale)
+        options.setdefault("expected_count", count)
+        options["watchdog"] = self.firmware.watchdog
         self._owns_firmware = False
         super().__init__(self.firmware.port or "(simulated, not started)", **options)
+
+    @property
+    def keepalive_interval(self):
+        """The serial driver's interval in the firmware's time, converted to real seconds."""
+        interval = super().keepalive_interval
+        return None if interval is None else interval / self.time_scale
 
     def open(self):
         """Start the firmware if needed, then open its pty like a serial port."""
@@ -373,51 +431,3 @@ class SimLightController(SerialLightController):
         if self._owns_firmware:
             self.firmware.stop()
             self._owns_firmware = False
-
-
-def _serial_from_config(config, **overrides):
-    options = {key: config[key] for key in ("baudrate", "timeout", "write_timeout", "reset_delay",
-                                            "retries") if config.get(key) is not None}
-    if config.get("count") is not None:
-        options["expected_count"] = config["count"]
-    options.update(overrides)
-    return SerialLightController(config["port"], **options)
-
-
-def _sim_from_config(config, **overrides):
-    options = {key: config[key] for key in ("timeout", "write_timeout", "retries", "watchdog",
-                                            "boot_delay") if config.get(key) is not None}
-    options.update(overrides)
-    return SimLightController(int(config.get("count") or 32), **options)
-
-
-LIGHT_DRIVERS = {
-    "serial": _serial_from_config,
-    "sim": _sim_from_config,
-}
-"""Light drivers by the ``lights.driver`` name of rigs.yaml: factory(config, **overrides)."""
-
-
-def make_light_controller(config, **overrides):
-    """Build the (unopened) light controller a rig's ``lights:`` section describes.
-
-    Parameters
-    ----------
-    config : mapping
-        A rig's ``lights`` section (:class:`rig.config.LightsConfig` or a plain dict) with at
-        least ``driver``; ``port`` for serial drivers.
-    **overrides
-        Constructor options that win over the section (e.g. ``timeout``, ``firmware``).
-
-    Returns
-    -------
-    LightController
-    """
-    driver = config.get("driver")
-    factory = LIGHT_DRIVERS.get(driver)
-    if factory is None:
-        raise LightError(f"lights.driver: unknown light driver {driver!r}; "
-                         f"known: {', '.join(sorted(LIGHT_DRIVERS))}")
-    if driver != "sim" and not config.get("port"):
-        raise LightError(f"lights.port: the {driver!r} light driver needs a port")
-    return factory(config, **overrides)

@@ -15,7 +15,7 @@ from ..errors import PsrigError
 __all__ = ["main", "COMMANDS"]
 
 COMMANDS = (
-    "rigs", "capture", "importers", "decode", "calibrate", "normals", "integrate",
+    "rigs", "capture", "preview", "importers", "decode", "calibrate", "normals", "integrate",
     "run", "eval", "report", "demo", "experiments", "reflectometry",
 )
 

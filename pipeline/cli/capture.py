@@ -33,6 +33,11 @@ def register(subparsers):
                         help="skip the chrome-sphere frames")
     parser.add_argument("--yes", action="store_true",
                         help="do not ask before the sphere frames (the sphere is already in place)")
+    parser.add_argument("--no-preview-check", dest="preview", action="store_false", default=None,
+                        help="start even when a preview of the brightest light clips")
+    parser.add_argument("--max-clipped", type=float, metavar="SHARE",
+                        help="largest clipped share of a channel the preview may show "
+                             "(default the rig's preview: max_clipped, 0.01)")
     parser.set_defaults(func=run)
 
 
@@ -52,8 +57,10 @@ def run(args):
 
         sim = SimulatedRig(rig, faults=os.environ[FAULTS_ENV])
     try:
+        preview = rig.preview["check"] if args.preview is None else args.preview
         capture_session(args.session, rig, resume=args.resume, sim=sim, sphere=args.sphere,
-                        on_prompt=_prompt_yes if args.yes else None)
+                        on_prompt=_prompt_yes if args.yes else None, preview=preview,
+                        max_clipped=args.max_clipped)
     except KeyboardInterrupt as exc:
         reason = str(exc) or "interrupted"
         config = f" --config {args.config}" if args.config else ""

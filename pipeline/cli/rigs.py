@@ -2,7 +2,7 @@
 
 import yaml
 
-__all__ = ["register", "run", "format_rig_table"]
+__all__ = ["register", "run", "format_rig_table", "format_driver_table"]
 
 
 def register(subparsers):
@@ -18,15 +18,27 @@ def register(subparsers):
 
 
 def _lights_text(lights):
-    where = "simulated" if lights.driver == "sim" else f"on {lights.port}"
-    return f"{lights.driver} x{lights.count} {where}"
+    from rig.drivers import light_driver
+
+    return f"{lights.driver} x{lights.count} {light_driver(lights.driver).describe(lights)}".rstrip()
 
 
 def _camera_text(camera):
+    from rig.drivers import camera_driver
+
     if camera.driver == "sim":
         return "sim"
-    ids = f"{camera.vendor_id:04x}:{camera.product_id:04x}"
-    return f"{camera.driver} {camera.get('path', 'auto')} {ids}"
+    return f"{camera.driver} {camera_driver(camera.driver).describe(camera)}".rstrip()
+
+
+def format_driver_table():
+    """One line per driver found: kind, name, built in or plugin, what it is (or why not)."""
+    from rig.drivers import driver_table
+
+    rows = [("DRIVER", "NAME", "FROM", "")] + driver_table()
+    widths = [max(len(row[i]) for row in rows) for i in range(3)]
+    return "\n".join("  ".join(cell.ljust(width) for cell, width in zip(row, widths + [0])).rstrip()
+                     for row in rows)
 
 
 def format_rig_table(rigs):
@@ -41,7 +53,7 @@ def format_rig_table(rigs):
 
 
 def _check_lights(rig):
-    from rig.lights import make_light_controller
+    from rig.drivers import make_light_controller
 
     with make_light_controller(rig.lights) as controller:
         version, count = controller.identify()
@@ -67,4 +79,6 @@ def run(args):
         return 0
     print(format_rig_table(rigs))
     print(f"{len(rigs)} rig{'s' * (len(rigs) != 1)}, all valid ({source})")
+    print()
+    print(format_driver_table())
     return 0

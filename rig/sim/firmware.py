@@ -20,7 +20,15 @@ Faults can be injected to test the host's recovery; each applies to the next rec
 ``interlock``
     ``ON`` is refused with ``ERR 3`` (the enclosure's door interlock is open);
 ``disconnect``
-    the board vanishes (USB cable pulled): the pty is hung up and every light goes dark.
+    the board vanishes (USB cable pulled): the pty is hung up and every light goes dark;
+``flood``
+    the command is carried out, then instead of its reply the board sends bytes without a line
+    end, 512 at a time, until the next command arrives (a crashed board or a wrong baud rate);
+``huge_number``
+    the command is carried out and its reply carries a 4,300-digit number.
+
+The line handling (:meth:`SimulatedLightFirmware.feed`) follows the sketch byte for byte; a test
+runs one command table through both (tests/rig/test_firmware_parity.py).
 """
 
 import os
@@ -29,12 +37,19 @@ import termios
 import threading
 import time
 import tty
+from collections import deque
+
+from rig.sim.clock import SimClock
 
 __all__ = ["SimulatedLightFirmware", "FAULT_KINDS", "PROTOCOL_ID"]
 
 PROTOCOL_ID = "PSRIG-LIGHTS 1"
-FAULT_KINDS = ("drop_reply", "garble", "err", "interlock", "disconnect")
+FAULT_KINDS = ("drop_reply", "garble", "err", "interlock", "disconnect", "flood", "huge_number")
 MAX_LINE = 64  # the sketch's line buffer; longer lines are rejected, not overflowed
+HUGE_DIGITS = 4300  # Python's int() refuses longer decimal strings (3.11+)
+HUGE_NUMBER_REPLY = {b"PSRIG-LIGHTS": b"PSRIG-LIGHTS 1 ", b"OK": b"OK ON ", b"STATE": b"STATE "}
+FLOOD_CHUNK = b"7" * 512  # bytes per firmware poll of a newline-less flood
+TIMELINE_LENGTH = 4096  # light changes kept for exposures to integrate over
 _POLL = 0.01  # seconds between watchdog checks
 
 
@@ -54,6 +69,10 @@ class SimulatedLightFirmware:
         ``{kind: count}`` faults to inject from the start, kinds in :data:`FAULT_KINDS`.
     ident : str, optional
         Reply to ``ID?`` instead of ``PSRIG-LIGHTS 1 <count>`` (to test a wrong device).
+    clock : rig.sim.clock.SimClock, optional
+        The firmware's time (watchdog, boot delay, the light timeline); default real time. A
+        simulated camera sharing it integrates what was lit over its exposures
+        (:meth:`light_weights`).
 
     Attributes
     ----------
@@ -63,9 +82,11 @@ class SimulatedLightFirmware:
         How many times the watchdog switched a light off.
     """
 
-    def __init__(self, count=32, *, watchdog=5.0, boot_delay=0.0, faults=None, ident=None):
+    def __init__(self, count=32, *, watchdog=5.0, boot_delay=0.0, faults=None, ident=None,
+                 clock=None):
         if int(count) < 1:
             raise ValueError(f"count must be at least 1, got {count}")
+        self.clock = clock or SimClock()
         self.count = int(count)
         self.watchdog = float(watchdog)
         self.boot_delay = float(boot_delay)
@@ -74,8 +95,13 @@ class SimulatedLightFirmware:
         self.watchdog_trips = 0
         self._levels = [255] * self.count
         self._lit = None
+        self._line, self._overflow, self._flooding = bytearray(), False, False
+        self._last_command = self.clock.now()  # as the sketch's setup(): the watchdog starts now
+        # (simulated time, light lit or None, its level): every change, oldest first; bounded,
+        # since an exposure only looks back over its own duration
+        self._timeline = deque([(float("-inf"), None, 0)], maxlen=TIMELINE_LENGTH)
         self._faults = {}
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()
         self._master = self._slave = None
         self._thread = None
         self._stop = threading.Event()
@@ -105,6 +131,35 @@ class SimulatedLightFirmware:
         """True while the pty is up (false after :meth:`stop` or a ``disconnect`` fault)."""
         return self._master is not None
 
+    def light_weights(self, start, end):
+        """What was lit between simulated times ``start`` and ``end``: ``{light: weight}``.
+
+        A light's weight is the share of the interval it was lit times its level / 255; an
+        instant (``end <= start``) gives the state at ``start``. Lights off contribute nothing,
+        so a light cut by the watchdog half way through gives 0.5.
+        """
+        with self._lock:
+            self._check_watchdog()
+            changes = list(self._timeline)
+        weights = {}
+        span = end - start
+        for (t, lit, level), nxt in zip(changes, changes[1:] + [(float("inf"), None, 0)]):
+            if lit is None or level == 0:
+                continue
+            if span <= 0:
+                share = 1.0 if t <= start < nxt[0] else 0.0
+            else:
+                share = max(0.0, min(end, nxt[0]) - max(start, t)) / span
+            if share > 0:
+                weights[lit] = weights.get(lit, 0.0) + share * level / 255.0
+        return weights
+
+    def _set_lit(self, index, when=None):
+        """Switch to ``index`` (None: all off) and note the change in the timeline."""
+        self._lit = index
+        level = 0 if index is None else self._levels[index]
+        self._timeline.append((self.clock.now() if when is None else when, index, level))
+
     def inject(self, kind, count=1):
         """Make the next ``count`` commands suffer fault ``kind`` (one of :data:`FAULT_KINDS`)."""
         if kind not in FAULT_KINDS:
@@ -129,8 +184,8 @@ class SimulatedLightFirmware:
         tty.setraw(self._slave, termios.TCSANOW)
         self._port = os.ttyname(self._slave)
         self._stop.clear()
-        self._boot_until = time.monotonic() + self.boot_delay
-        self._last_command = time.monotonic()
+        self._boot_until = self.clock.now() + self.boot_delay
+        self._last_command = self.clock.now()
         self._thread = threading.Thread(target=self._run, name=f"light-firmware {self._port}",
                                         daemon=True)
         self._thread.start()
@@ -154,7 +209,8 @@ class SimulatedLightFirmware:
 
     def _hang_up(self):
         # State first, then the fds: whoever sees the hang-up must also see it dark and gone.
-        self._lit = None
+        with self._lock:
+            self._set_lit(None)
         fds, self._master, self._slave = (self._master, self._slave), None, None
         for fd in fds:
             if fd is not None:
@@ -166,7 +222,6 @@ class SimulatedLightFirmware:
     # -- firmware loop ------------------------------------------------------------------------
 
     def _run(self):
-        buffer, overflow = b"", False
         while not self._stop.is_set() and self._master is not None:
             master = self._master
             try:
@@ -175,25 +230,55 @@ class SimulatedLightFirmware:
             except (OSError, ValueError):
                 data = b""  # no slave open right now: nothing to read
                 time.sleep(_POLL)
-            self._check_watchdog()
-            if not data or time.monotonic() < self._boot_until:
+            self.poll()
+            if data and self.clock.now() >= self._boot_until:
+                self._flooding = False  # a new command ends a flood, as a reset board would
+                self._send_bytes(self.feed(data))
+            if self._flooding:
+                self._send_bytes(FLOOD_CHUNK, wait=False)
+
+    def feed(self, data):
+        """Take bytes arriving on the serial line, exactly as the sketch's ``readSerial()``
+        does; returns the bytes the board sends back.
+
+        ``\r`` is ignored; ``\n`` ends a line; a line ends at its first NUL (a C string); an
+        empty line is ignored (it does not count for the watchdog); the 65th character of a
+        line answers ``ERR 1 line too long`` and the rest of that line is dropped unanswered.
+        """
+        out = []
+        for byte in bytes(data):
+            if self._master is None and self._port is not None:
+                break  # hung up (disconnect fault): the rest is lost
+            if byte == 0x0D:
                 continue
-            buffer += data
-            while b"\n" in buffer and self._master is not None:
-                line, buffer = buffer.split(b"\n", 1)
-                if overflow:  # the tail of an over-long line, already answered
-                    overflow = False
-                    continue
-                self._receive(line)
-            if len(buffer) > MAX_LINE and not overflow:
-                self._send("ERR 1 line too long")
-            if len(buffer) > MAX_LINE:
-                buffer, overflow = b"", True
+            if byte == 0x0A:
+                line, skip = bytes(self._line).split(b"\0", 1)[0], self._overflow
+                self._line.clear()
+                self._overflow = False
+                if not skip and line:
+                    out.append(self._receive(line))
+            elif self._overflow:
+                pass  # the rest of an over-long line
+            elif len(self._line) < MAX_LINE:
+                self._line.append(byte)
+            else:
+                out.append(b"ERR 1 line too long\n")
+                self._overflow = True
+                self._line.clear()
+        return b"".join(out)
+
+    def poll(self):
+        """What the sketch's ``loop()`` does between reads: the watchdog check. The firmware
+        thread calls it every 10 ms; a test driving :meth:`feed` by hand calls it itself."""
+        with self._lock:
+            self._check_watchdog()
 
     def _check_watchdog(self):
+        # Called with the lock held. The light goes out exactly ``watchdog`` after the last
+        # command, as the sketch's millis() comparison does, however late this poll runs.
         if (self.watchdog > 0 and self._lit is not None
-                and time.monotonic() - self._last_command > self.watchdog):
-            self._lit = None
+                and self.clock.now() - self._last_command > self.watchdog):
+            self._set_lit(None, when=self._last_command + self.watchdog)
             self.watchdog_trips += 1
 
     def _take_fault(self, kind):
@@ -203,72 +288,110 @@ class SimulatedLightFirmware:
                 return True
         return False
 
-    def _receive(self, raw):
-        text = raw.decode("ascii", errors="replace").strip()
-        if not text:
-            return
-        self.history.append(text)
-        self._last_command = time.monotonic()
+    def _receive(self, line):
+        """One command line (bytes, no line end): carry it out; the bytes to send back."""
+        self.history.append(line.decode("latin-1").strip(" \t"))
+        with self._lock:
+            self._check_watchdog()  # a trip due before this command happened before it
+            self._last_command = self.clock.now()
         if self._take_fault("disconnect"):
             self._hang_up()
-            return
+            return b""
         if self._take_fault("err"):
-            self._send("ERR 1 unknown command")
-            return
-        reply = self.execute(text)
+            return b"ERR 1 unknown command\n"
+        with self._lock:
+            reply = self._execute(line)
+        if reply is None:
+            return b""  # blanks and tabs only: the sketch's strtok finds no command
+        return self._faulty_reply(reply)
+
+    def _faulty_reply(self, reply):
+        """The reply line as sent, after any reply fault armed for it."""
         if self._take_fault("drop_reply"):
-            return
+            return b""
         if self._take_fault("garble"):
-            self._send_bytes(_garble(reply.encode("ascii")))
+            return _garble(reply)
+        if self._take_fault("huge_number"):
+            return HUGE_NUMBER_REPLY.get(reply.split(b" ", 1)[0], b"STATE ") + b"9" * HUGE_DIGITS + b"\n"
+        if self._take_fault("flood"):
+            self._flooding = True
+            return FLOOD_CHUNK
+        return reply + b"\n"
+
+    def _send_bytes(self, data, wait=True):
+        if not data:
             return
-        self._send(reply)
-
-    def _send(self, line):
-        self._send_bytes(line.encode("ascii") + b"\n")
-
-    def _send_bytes(self, data):
         try:
-            os.write(self._master, data)
-        except (OSError, TypeError):
+            if wait:
+                os.write(self._master, data)
+            else:  # a flood must not block the firmware when the host stops reading
+                ready = select.select([], [self._master], [], 0)[1]
+                if ready:
+                    os.write(self._master, data)
+        except (OSError, TypeError, ValueError):
             pass  # hung up meanwhile: the reply is lost, as on a pulled cable
 
     # -- the protocol -------------------------------------------------------------------------
 
     def execute(self, text):
-        """Carry out one command line and return the reply line (without ``\\n``)."""
-        words = text.split()
-        name, args = words[0], words[1:]
-        if name == "ID?" and not args:
-            return self.ident
-        if name == "STATE?" and not args:
-            return f"STATE {'-' if self._lit is None else self._lit}"
-        if name == "OFF" and not args:
-            self._lit = None
-            return "OK OFF"
-        if name == "ON" and len(args) == 1:
-            index = self._index(args[0])
-            if index is None:
-                return f"ERR 2 bad index {args[0]}"
-            if self._take_fault("interlock"):
-                self._lit = None
-                return "ERR 3 interlock open"
-            self._lit = index
-            return f"OK ON {index}"
-        if name == "LEVEL" and len(args) == 2:
-            index = self._index(args[0])
-            if index is None:
-                return f"ERR 2 bad index {args[0]}"
-            if not (args[1].isdigit() and len(args[1]) <= 3 and int(args[1]) <= 255):
-                return f"ERR 1 bad level {args[1]}"
-            self._levels[index] = int(args[1])
-            return f"OK LEVEL {index} {int(args[1])}"
-        return "ERR 1 unknown command"
+        """Carry out one command line (str or bytes, no line end); the reply line (str, no
+        ``\n``), or None when the line holds no command (blanks and tabs only)."""
+        line = text.encode("latin-1") if isinstance(text, str) else bytes(text)
+        with self._lock:
+            reply = self._execute(line)
+        return None if reply is None else reply.decode("latin-1")
+
+    def _execute(self, line):
+        """The sketch's ``execute()``: words split at blanks and tabs (strtok), at most four
+        read; the reply line (bytes, no line end) or None."""
+        words = [w for w in line.replace(b"\t", b" ").split(b" ") if w][:4] + [None] * 4
+        name, arg1, arg2, extra = words[:4]
+        if name is None:
+            return None
+        if name == b"ID?" and arg1 is None:
+            return self.ident.encode("latin-1")
+        if name == b"STATE?" and arg1 is None:
+            return b"STATE " + (b"-" if self._lit is None else str(self._lit).encode())
+        if name == b"OFF" and arg1 is None:
+            self._set_lit(None)
+            return b"OK OFF"
+        if name == b"ON" and arg1 is not None and arg2 is None:
+            return self._on(arg1)
+        if name == b"LEVEL" and arg2 is not None and extra is None:
+            return self._level(arg1, arg2)
+        return b"ERR 1 unknown command"
+
+    def _on(self, word):
+        index = self._index(word)
+        if index is None:
+            return b"ERR 2 bad index " + word
+        if self._take_fault("interlock"):
+            self._set_lit(None)
+            return b"ERR 3 interlock open"
+        self._set_lit(index)
+        return b"OK ON " + str(index).encode()
+
+    def _level(self, word, value):
+        index = self._index(word)
+        if index is None:
+            return b"ERR 2 bad index " + word
+        if len(value) > 3 or not _digits(value) or int(value) > 255:
+            return b"ERR 1 bad level " + value
+        self._levels[index] = int(value)
+        if self._lit == index:  # the lit light dims at once, as the sketch's applyLight
+            self._set_lit(index)
+        return b"OK LEVEL " + f"{index} {int(value)}".encode()
 
     def _index(self, word):
-        # At most 4 digits, as the sketch's parser reads.
-        if word.isdigit() and len(word) <= 4 and int(word) < self.count:
+        # the sketch's parseIndex: 1 to 4 decimal digits, below the light count
+        if len(word) <= 4 and _digits(word) and int(word) < self.count:
             return int(word)
         return None
+
+
+def _digits(word):
+    """True when ``word`` (bytes) is one or more ASCII digits (str.isdigit takes more)."""
+    return bool(word) and all(0x30 <= b <= 0x39 for b in word)
 
 
 def _garble(data):

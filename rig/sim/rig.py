@@ -18,12 +18,21 @@ The rig's ``scene:`` section may hold:
 ``seed``             integer seeding light jitter, intensities and sensor noise (default 0)
 ``light_jitter_deg`` tilt of each true light away from its nominal direction (default 1.5)
 ``distance``         near point lights at ``true direction * distance`` (pixels); default none
-``exposure_seconds`` time each exposure takes, as a real shutter does (default 0)
+``exposure_seconds`` real seconds each exposure takes, whatever the shutter (default: see below)
+``time_scale``       simulated seconds per real second of the devices' shared clock (default 1):
+                     at 40, an 8 s exposure and the firmware's 5 s watchdog take 0.2 s and
+                     0.125 s, so long exposures are tested quickly
+``nd_stops``         a neutral-density filter on the lens: the light is divided by 2**nd_stops
+                     (default 0), so a long exposure need not clip
 
 The rig's ``exposure:`` section is set on the simulated camera like on a real one; the sensor
 then collects light in proportion to the shutter time the camera was set to, relative to its
-factory default (1/30 s): 1/15 s doubles the signal (clipped at white). Without an
-``exposure:`` key nothing is set and the images are exactly those of earlier versions.
+factory default (1/30 s): 1/15 s doubles the signal (clipped at white). An exposure then lasts
+the shutter time on the simulated clock, and the image integrates what the firmware actually
+lit during it, at each light's level (``LEVEL``): a light the watchdog cut after 5 s of an 8 s
+exposure gives 5/8 of its signal, a light off all along a dark frame. Without an ``exposure:``
+key nothing is set, exposures are instantaneous (what is lit when the camera fires) and the
+images are exactly those of earlier versions.
 
 Faults for tests are ``{name: count}`` (or the text ``"busy:2,garble:1@object_005"`` parsed by
 :func:`parse_faults`). Light faults: drop_reply, garble, err, interlock, ``light.disconnect``;
@@ -44,15 +53,18 @@ import numpy as np
 from pipeline.atomic import atomic_write_text
 from rig.camera import PtpCamera
 from rig.config import ConfigError
+from rig.drivers import make_light_controller
 from rig.lights import LightError, SimLightController
 from rig.sim import firmware as _firmware
 from rig.sim import usb_camera as _usb_camera
+from rig.sim.clock import SimClock
 from rig.sim.firmware import SimulatedLightFirmware
 from rig.sim.scene import DEFAULT_SHAPE, Scene, default_lights
 
 __all__ = ["SimulatedRig", "SCENE_KEYS", "SCENES", "parse_faults", "split_faults", "jitter_directions"]
 
-SCENE_KEYS = ("shape", "seed", "light_jitter_deg", "distance", "exposure_seconds")
+SCENE_KEYS = ("shape", "seed", "light_jitter_deg", "distance", "exposure_seconds", "time_scale",
+              "nd_stops")
 SCENES = ("object", "sphere", "dark", "outline")
 SPHERES_TRUTH = "truth/spheres.yaml"
 _CAMERA_OPTIONS = ("timeout", "busy_retries", "busy_backoff", "chunk_size", "delete_after_download")
@@ -137,7 +149,8 @@ def _scene_settings(rig_config):
         raise ConfigError(f"{where}.seed: expected an integer >= 0, got {seed!r}")
     numbers = {}
     for key, default, low in (("light_jitter_deg", 1.5, 0.0), ("distance", None, 1e-9),
-                              ("exposure_seconds", 0.0, 0.0)):
+                              ("exposure_seconds", 0.0, 0.0), ("time_scale", 1.0, 1e-3),
+                              ("nd_stops", 0.0, 0.0)):
         value = scene.get(key, default)
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
                                   or not np.isfinite(value) or value < low):
@@ -218,13 +231,11 @@ class SimulatedRig:
         self.true_lights = self._make_true_lights()
         self.scenes = self._make_scenes()
         self.scene, self.shot, self._shots = "object", None, 0
-        self.firmware = SimulatedLightFirmware(rig_config.lights.count, faults=start["light"],
-                                               watchdog=rig_config.lights.get("watchdog", 5.0))
+        self.last_weights = {}  # what the last exposure saw lit: {light: weight}
+        self.clock = SimClock(self.settings["time_scale"])
         self.backend = _usb_camera.make_backend(self._render, behaviour=self.behaviour,
                                                 faults=start["camera"])
-        options = {k: rig_config.lights[k] for k in _LIGHT_OPTIONS if rig_config.lights.get(k) is not None}
-        self.lights = SimLightController(rig_config.lights.count, firmware=self.firmware,
-                                         reset_delay=0.0, **options)
+        self.firmware, self.lights = self._make_lights(start["light"])
         cam_options = {k: rig_config.camera[k] for k in _CAMERA_OPTIONS if k in rig_config.camera}
         self.camera = PtpCamera(backend=self.backend, path=self.behaviour, **cam_options)
         self.is_open = False
@@ -233,6 +244,21 @@ class SimulatedRig:
         return f"SimulatedRig({self.config.name!r}, {len(self.true_lights['directions'])} lights)"
 
     # -- building ------------------------------------------------------------------------------
+    def _make_lights(self, faults):
+        """(firmware or None, controller): the simulated firmware and the serial driver on it,
+        or, for a rig whose lights are real, that rig's own controller (no firmware)."""
+        config = self.config.lights
+        if config.driver != "sim":
+            if faults:
+                raise ConfigError(f"faults: light faults ({', '.join(faults)}) need simulated "
+                                  f"lights; rig '{self.config.name}' has {config.driver!r} lights")
+            return None, make_light_controller(config)
+        firmware = SimulatedLightFirmware(config.count, faults=faults,
+                                          watchdog=config.get("watchdog", 5.0), clock=self.clock)
+        options = {k: config[k] for k in _LIGHT_OPTIONS if config.get(k) is not None}
+        return firmware, SimLightController(config.count, firmware=firmware, reset_delay=0.0,
+                                            **options)
+
     def _make_true_lights(self):
         s, count = self.settings, self.config.lights.count
         directions = jitter_directions(self.config.lights.directions, s["light_jitter_deg"], s["seed"])
@@ -252,7 +278,8 @@ class SimulatedRig:
         """Start the firmware, open the light driver on it and the camera; returns self."""
         if self.is_open:
             return self
-        self.firmware.start()
+        if self.firmware is not None:
+            self.firmware.start()
         try:
             self.lights.open()
             self.camera.open()
@@ -272,7 +299,8 @@ class SimulatedRig:
         finally:
             self.lights.close()
             self.camera.close()
-            self.firmware.stop()
+            if self.firmware is not None:
+                self.firmware.stop()
             self.is_open = False
 
     def __enter__(self):
@@ -302,19 +330,46 @@ class SimulatedRig:
         armed = self._faults.pop(frame_id, None)
         if armed:
             for kind_, count in armed["light"].items():
+                if self.firmware is None:
+                    raise ConfigError(f"faults: light fault {kind_!r} needs simulated lights")
                 self.firmware.inject(kind_, count)
             for kind_, count in armed["camera"].items():
                 self.backend.inject(kind_, count)
 
+    def _exposure_seconds(self):
+        """Simulated seconds the next exposure lasts: the camera's shutter time when the rig
+        sets an exposure, else 0 (instantaneous, as before exposure control)."""
+        exposure = self.config.exposure or {}
+        if "shutter" in exposure or "bracket" in exposure:
+            return self.backend.camera.shutter_seconds()
+        return 0.0
+
+    def _expose(self):
+        """Hold the shutter open; returns ``{light: weight}`` of what was lit meanwhile."""
+        if self.firmware is None:  # real lights: the light their controller confirmed on
+            lit = getattr(self.lights, "lit", None)
+            if self.settings["exposure_seconds"]:
+                time.sleep(self.settings["exposure_seconds"])
+            else:
+                self.clock.sleep(self._exposure_seconds())
+            return {} if lit is None else {lit: 1.0}
+        if self.settings["exposure_seconds"]:
+            start = self.clock.now()
+            time.sleep(self.settings["exposure_seconds"])
+            return self.firmware.light_weights(start, start)  # lit when the shutter opened
+        start = self.clock.now()
+        self.clock.sleep(self._exposure_seconds())
+        return self.firmware.light_weights(start, self.clock.now())
+
     def _render(self):
-        """What the sensor records now: the current scene under ``firmware.lit``."""
+        """What the sensor records now: the current scene under what the firmware lit during
+        the exposure (see the module docstring)."""
         if self.shot is None:  # no frame announced: still give each exposure its own noise
             self._shots += 1
         shot = self.shot if self.shot is not None else self._shots
-        light = self.firmware.lit
-        if self.settings["exposure_seconds"]:
-            time.sleep(self.settings["exposure_seconds"])
-        gain = self.backend.camera.exposure_gain()
+        weights = self._expose()
+        self.last_weights = weights
+        gain = self.backend.camera.exposure_gain() * 2.0 ** -self.settings["nd_stops"]
         if self.scene == "outline":
             scene = self.scenes["sphere"]
             linear = scene.render_room() * np.float32(gain)
@@ -322,11 +377,18 @@ class SimulatedRig:
             return scene.dng_from_mosaic(scene.mosaic_from_linear(linear, key=(0, 2, int(shot))))
         scene, ambient = self.scenes["object" if self.scene == "dark" else self.scene], True
         if self.scene == "dark":
-            light, ambient = None, False
-        if gain == 1.0:  # the factory shutter: bit-identical to the images before exposure control
+            weights, ambient = {}, False
+        light = max(weights, key=weights.get) if weights else None
+        if gain == 1.0 and weights in ({}, {light: 1.0}):
+            # one light at full level all along, factory shutter: bit-identical to the images
+            # before exposure control
             return scene.render_dng(light, ambient=ambient, shot=shot)
-        # light collected scales with the shutter time; noise and clipping act on the result
-        linear = scene.render_linear(light, ambient=ambient) * np.float32(gain)
+        # light collected scales with the shutter time and with each light's lit share and
+        # level; noise and clipping act on the result
+        linear = scene.render_linear(None, ambient=ambient)
+        for index, weight in weights.items():
+            linear += np.float32(weight) * scene.render_linear(index, ambient=False)
+        linear *= np.float32(gain)
         key = (0 if light is None else int(light) + 1, int(ambient), int(shot))
         return scene.dng_from_mosaic(scene.mosaic_from_linear(linear, key=key))
 

@@ -26,6 +26,10 @@ detach, bulk and interrupt transfers. Two layers:
   ``new_folder``    the next generic capture first reports a new folder (an association
                     object) in an ObjectAdded event, as cameras do when they start a new DCIM
                     directory
+  ``length_lie``    the next data phase's header claims 1 GiB (the payload is what it is)
+  ``length_max``    the next data phase's header claims 0xFFFFFFF0 bytes
+  ``trickle``       the next data phase arrives slowly: a pause before each of its bulk reads,
+                    each pause shorter than a transfer timeout
 
 Exposure properties: ``generic`` and ``nikon`` cameras offer the PTP standard ExposureTime
 (0x500D, UINT32, 0.1 ms), FNumber (0x5007, UINT16, x 100) and ExposureIndex (0x500F, UINT16)
@@ -59,7 +63,10 @@ __all__ = ["SimObject", "SimProp", "SimulatedPtpCamera", "SimulatedUsbBackend", 
            "FAULT_KINDS", "BEHAVIOURS", "DATA_OUT_OPS", "REFERENCE_SHUTTER"]
 
 FAULT_KINDS = ("busy", "timeout", "disconnect", "truncated", "session_open", "claimed",
-               "no_event", "kernel_driver", "new_folder", "stale_response")
+               "no_event", "kernel_driver", "new_folder", "stale_response", "length_lie",
+               "length_max", "trickle")
+LENGTH_LIE = 1 << 30  # bytes a lying data header claims (fault 'length_lie')
+TRICKLE_PAUSE = 0.05  # seconds before each bulk read of a trickled data phase (fault 'trickle')
 BEHAVIOURS = ("generic", "canon", "nikon")
 
 BULK_MPS = 512   # high-speed bulk wMaxPacketSize (bytes)
@@ -198,6 +205,7 @@ class SimulatedPtpCamera:
         self.render, self.behaviour, self.faults = render, behaviour, faults
         self.filename_ext, self.serial = filename_ext, serial
         self.objects: dict[int, SimObject] = {}
+        self.next_names: list[str] = []  # names for the next captures (tests: odd names)
         self.captures = 0
         self.log: list[int] = []          # operation codes executed, in order
         self.events: deque = deque()      # packed event containers for the interrupt endpoint
@@ -359,7 +367,8 @@ class SimulatedPtpCamera:
         data = data if isinstance(data, bytes) else bytes(data)
         self.captures += 1
         handle, self._next_handle = self._next_handle, self._next_handle + 1
-        name = f"{_PREFIX[self.behaviour]}{self.captures:04d}{self.filename_ext}"
+        name = (self.next_names.pop(0) if self.next_names
+                else f"{_PREFIX[self.behaviour]}{self.captures:04d}{self.filename_ext}")
         obj = SimObject(data, name, ptp.format_for_filename(name))
         self.objects[handle] = obj
         return None if self.faults.take("no_event") else (handle, obj)
@@ -449,6 +458,7 @@ class _InTransfer:
         self.pos = 0
         self.op = op
         self.cut_at = None  # byte offset where the cable is pulled
+        self.trickle = False  # pause before each read (a camera sending slowly)
 
     @property
     def remaining(self) -> int:
@@ -687,8 +697,14 @@ class SimulatedUsbBackend(usb.backend.IBackend):
         payload, code, params = self.camera.execute(cmd.code, cmd.transaction_id, cmd.params,
                                                     out)
         if payload is not None:
-            t = _InTransfer([ptp.pack_data_header(cmd.code, cmd.transaction_id, len(payload)),
+            claimed = len(payload)
+            if self.faults.take("length_lie", cmd.code):
+                claimed = LENGTH_LIE
+            elif self.faults.take("length_max", cmd.code):
+                claimed = 0xFFFFFFF0 - ptp.HEADER.size
+            t = _InTransfer([ptp.pack_data_header(cmd.code, cmd.transaction_id, claimed),
                              payload], cmd.code)
+            t.trickle = self.faults.take("trickle", cmd.code)
             if cmd.code == Op.GetObject and self.faults.take("disconnect"):
                 t.cut_at = t.length // 2
             self._in.append(t)
@@ -703,6 +719,8 @@ class SimulatedUsbBackend(usb.backend.IBackend):
             self._in.clear()  # a hung camera drops the transaction
             raise USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
         size, out, got = len(buff) * buff.itemsize, memoryview(buff).cast("B"), 0
+        if self._in[0].trickle:
+            time.sleep(TRICKLE_PAUSE)
         if self._in[0].remaining == 0:  # the zero-length packet ending a full-packet transfer
             self._in.popleft()
             return 0

@@ -4,12 +4,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from pipeline.cli import main
 from pipeline.lightsio import write_lp
 from rig.config import (ConfigError, RigConfig, default_rig_name, find_rigs_file, get_rig,
                         load_rigs, ring_directions)
-from rig.lights import make_light_controller
+from rig.drivers import make_light_controller
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -23,16 +24,20 @@ rigs:
 """
 
 
-def test_shipped_rigs_file_is_valid_and_shipped_copy_identical():
+def test_shipped_rigs_file_is_valid_and_the_sim_rigs_defined_once():
     rigs = load_rigs(REPO / "rigs.yaml")
-    assert "sim" in rigs and len(rigs) >= 2
+    assert {"sim", "sim-near", "lab-dome", "bench-arm"} <= set(rigs)
     assert all(isinstance(rig, RigConfig) for rig in rigs.values())
-    assert (REPO / "rig" / "rigs_default.yaml").read_bytes() == (REPO / "rigs.yaml").read_bytes()
+    # one definition of the simulated rigs: the packaged file, not the example file
+    assert "sim" not in (yaml.safe_load((REPO / "rigs.yaml").read_text())["rigs"])
+    assert rigs["sim"].source.endswith("rig/sim/rigs.yaml")
+    assert rigs["sim"].frames.ambient == 1  # as the demo has always captured
+    assert not (REPO / "rig" / "rigs_default.yaml").exists()
 
 
 def test_sim_rig_always_present_with_upper_hemisphere_rings(lights_rigs_file):
     rigs = load_rigs(lights_rigs_file(GOOD))
-    assert set(rigs) == {"lab2", "sim"}
+    assert set(rigs) == {"lab2", "sim", "sim-near"}
     sim = rigs["sim"]
     assert sim.is_simulated and sim.lights.count == 32
     dirs = sim.lights.directions
@@ -155,15 +160,15 @@ def test_ring_directions_azimuth_convention():
 def test_file_search_order(tmp_path, monkeypatch, lights_rigs_file):
     monkeypatch.delenv("PSRIG_RIGS", raising=False)
     monkeypatch.chdir(tmp_path)
-    assert find_rigs_file() in (REPO / "rigs.yaml", REPO / "rig" / "rigs_default.yaml")
+    assert find_rigs_file() == REPO / "rigs.yaml"
     local = lights_rigs_file(GOOD)
     assert find_rigs_file() == local and "lab2" in load_rigs()
     other = lights_rigs_file("default: sim\n", name="other.yaml")
     monkeypatch.setenv("PSRIG_RIGS", str(other))
-    assert set(load_rigs()) == {"sim"} and default_rig_name() == "sim"
+    assert set(load_rigs()) == {"sim", "sim-near"} and default_rig_name() == "sim"
     with pytest.raises(ConfigError, match=r"nowhere\.yaml: cannot read"):
         load_rigs(tmp_path / "nowhere.yaml")
-    with pytest.raises(ConfigError, match="no rig named 'lab9' \\(rigs: sim\\)"):
+    with pytest.raises(ConfigError, match="no rig named 'lab9' \\(rigs: sim, sim-near\\)"):
         get_rig("lab9")
 
 
@@ -181,7 +186,7 @@ def test_cli_lists_and_validates(lights_rigs_file, capsys):
     assert main(["rigs", "--config", str(path)]) == 0
     out = capsys.readouterr().out
     assert "lab2" in out and "serial x2 on /dev/ttyACM1" in out and "ptp canon 04a9:3294" in out
-    assert "sim x32" in out and "2 rigs, all valid" in out
+    assert "sim x32" in out and "3 rigs, all valid" in out
 
     assert main(["rigs", "--config", str(path), "--show", "lab2"]) == 0
     assert "port: /dev/ttyACM1" in capsys.readouterr().out

@@ -370,7 +370,7 @@ def test_capture_refused_exposure_stops_before_any_frame(tmp_path, rigs):
 @pytest.mark.parametrize("exposure, message", [
     ("{shutter: fast}", r"exposure.shutter: .*'fast' is not a number"),
     ("{iso: 100.5}", r"exposure.iso: .*whole number"),
-    ("{focus: 1}", r"exposure.focus: unknown key \(known: shutter, iso, aperture\)"),
+    ("{focus: 1}", r"exposure.focus: unknown key \(known: shutter, iso, aperture, bracket\)"),
     ("{aperture: 0}", r"exposure.aperture: .*positive"),
 ])
 def test_rig_file_exposure_validation(exposure, message):

@@ -5,9 +5,10 @@ import time
 import pytest
 
 from rig.lights import (
-    LIGHT_DRIVERS, LightCommandError, LightConnectionError, LightController, LightError,
+    LightCommandError, LightConnectionError, LightController, LightError,
     LightIndexError, LightInterlockError, LightProtocolError, LightTimeout,
-    SerialLightController, SimLightController, make_light_controller)
+    SerialLightController, SimLightController)
+from rig.drivers import LIGHT_DRIVERS, make_light_controller
 from rig.sim.firmware import SimulatedLightFirmware
 
 LIGHTS_TIMEOUT = 0.4  # as in conftest.py (not imported: other folders have a conftest too)
