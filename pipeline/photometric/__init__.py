@@ -10,8 +10,9 @@ Where things live:
 - :mod:`.engine`: chunks of pixels on all cores, shared by every path;
 - :mod:`.methods`: the method registry :data:`METHODS`, the status codes, the Lambertian
   baselines and the paper's alternation with any reflectance model;
-- :mod:`.biquadratic`: the default method; :mod:`.alternation` its per-pixel mathematics
-  (compiled in :mod:`.kernels`); :mod:`.shared_shape` the object's one shape and the
+- :mod:`.biquadratic`: the default method; :mod:`.model` the biquadratic's building blocks,
+  :mod:`.pixel_fit` each pixel's joint fit of normal and coefficients (compiled in
+  :mod:`.kernels`); :mod:`.shared_shape` the object's one shape and the
   single-material check; :mod:`.selection` which observations each pixel uses;
 - :mod:`.anchor`: the light cone corrected on specular peaks;
 - :mod:`.near_lights`, :mod:`.near_depth`: near point lights, at the integrated depth;

@@ -2,9 +2,9 @@
 observation selection and a shared-shape prior.
 
 A chunk runs in two phases. :meth:`Biquadratic.select` picks each pixel's observations
-(:mod:`pipeline.photometric.selection`) and never waits; :meth:`Biquadratic.fit` alternates
-the 9 shape parameters and a Gauss-Newton normal step (:mod:`pipeline.photometric.alternation`)
-with each pixel pulled toward albedo x the object's shared shape, which
+(:mod:`pipeline.photometric.selection`) and never waits; :meth:`Biquadratic.fit` fits
+each pixel's normal and 9 coefficients jointly (:mod:`pipeline.photometric.pixel_fit`), its
+shape pulled toward a multiple of the object's shared shape, which
 :meth:`Biquadratic.prepare` fits once per image on a pixel sample
 (:mod:`pipeline.photometric.shared_shape`). When the object fails the single-material check on
 the automatic narrow-cone path, every pixel falls back to the paper's darkest-fraction rule
@@ -13,27 +13,44 @@ without the prior. The rules and the measurements behind them: docs/photometric-
 
 import numpy as np
 
-from .alternation import alternate_per_pixel, alternate_shared, half_vectors, to_paper_order
-from .engine import known_context
+from .model import half_vectors, to_paper_order
+from .pixel_fit import MAX_ITER, TOL_DEG, fit_pixels
 from .methods import METHODS, MIN_OBS, STATUS, base_status, shading
 from .selection import select_observations
 from .shared_shape import fit_shared_shape, single_material_check
 
-__all__ = ["Biquadratic", "biquadratic_method"]
+__all__ = ["Biquadratic", "biquadratic_method", "LAMBERT_SHAPE"]
+
+#: The prior shape when the object has no shared one (several materials, wide light sets):
+#: rho constant. Its pull, scale-free like the shared shape's, keeps a pixel's falloff near
+#: Lambertian unless its observations say otherwise. Measured on a Cook-Torrance sphere
+#: under 80 lights over the hemisphere (roughness 0.4; tests/pipeline/photometric/test_estimate.py):
+#: no prior 2.25 degrees (and 12 % of pixels not converged after 50 steps), strength 1e-3 1.66,
+#: 1e-2 1.24, 1e-1 1.31.
+LAMBERT_SHAPE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+#: the prior's strength that holds a pixel to a multiple of the shared shape (status shared_shape)
+SHAPE_ONLY = 1e6
+#: pixels of the image the shared shape is fitted on (a fixed random sample), its
+#: Levenberg-Marquardt steps, and the observations a sampled pixel needs to take part
+SAMPLE_PIXELS = 2000
+SHAPE_ITERATIONS = 12
+MIN_SHAPE_OBS = 5
+#: a model is fitted at a pixel when its observations exceed the fit's effective parameters
+#: (the normal's 2 plus the trace of the coefficients' hat matrix) by this many
+SPARE_OBS = 3
 
 
 class Biquadratic:
     """The default method; see the module docstring and :func:`biquadratic_method`."""
 
-    def prepare(self, gather, pixels, shape_prior=0.01, sample_pixels=2000, seed=0, fallback_t_low=None,
-                **options):
+    def prepare(self, gather, pixels, shape_prior=0.01, sample_pixels=SAMPLE_PIXELS, seed=0,
+                min_shape_obs=MIN_SHAPE_OBS, **options):
         """Fit the shared shape on a fixed random subsample of the object's pixels.
 
         Returns the context every chunk is solved with (the tiled stage computes it once and
         hands the same dict to every tile): ``shape`` (3, 3) and ``shape_paper`` (9,) when the
-        prior is used, ``shape_check`` (:func:`single_material_check`), and ``select``, the
-        selection options of the darkest-fraction fallback when the check failed and
-        ``fallback_t_low`` is set (by :func:`resolve_selection`, on the automatic narrow-cone path).
+        shared shape is used, and ``shape_check`` (:func:`single_material_check`), which holds
+        ``fallback`` when the object failed it and its pixels get the Lambertian prior instead.
         """
         if shape_prior is None or shape_prior <= 0 or options.get("shared_shape") is False:
             return {}
@@ -41,13 +58,13 @@ class Biquadratic:
         take = np.sort(rng.choice(len(pixels), min(sample_pixels, len(pixels)), replace=False))
         obs, valid, lights = gather(pixels[take])
         base, weights, b = select_observations(obs, valid, lights, **options)
-        good = weights.sum(axis=1) >= 12
+        good = weights.sum(axis=1) >= min_shape_obs
         if good.sum() < 20:
             return {}
         h, y = half_vectors(lights)
         sel = (lambda a: a[good]) if lights.ndim == 3 else (lambda a: a)
         shape, b_shared = fit_shared_shape(obs[good], weights[good], b[good], sel(lights), sel(h), sel(y),
-                                           iterations=12)
+                                           iterations=SHAPE_ITERATIONS)
         if not np.isfinite(shape).all():
             return {}
         if options.get("shape_check") is False:  # the caller insists on the prior
@@ -55,10 +72,7 @@ class Biquadratic:
         check = single_material_check(obs[good], weights[good], b[good], b_shared, shape, sel(lights), sel(h),
                                       sel(y))
         if not check["one_material"]:
-            if not fallback_t_low:
-                return {"shape_check": check}
-            return {"shape_check": dict(check, fallback=f"darkest t_low {fallback_t_low:g}"),
-                    "select": {"selection": "darkest", "t_low": float(fallback_t_low)}}
+            return {"shape_check": dict(check, fallback="lambertian prior")}
         return {"shape": shape, "shape_paper": to_paper_order(shape), "shape_check": check}
 
     def __call__(self, obs, valid, lights, context=None, **options):
@@ -67,40 +81,44 @@ class Biquadratic:
     def select(self, obs, valid, lights, context=None, **options):
         """Phase one of a chunk, which never waits for the shared shape: its observations'
         selection. Returns what :meth:`fit` takes."""
-        switch = known_context(context).get("select")
-        base, weights, b = select_observations(obs, valid, lights, **{**options, **(switch or {})})
-        return {"obs": obs, "valid": valid, "lights": lights, "base": base, "weights": weights, "b": b,
-                "switched": switch is not None}
+        base, weights, b = select_observations(obs, valid, lights, **options)
+        return {"obs": obs, "valid": valid, "lights": lights, "base": base, "weights": weights, "b": b}
 
-    def fit(self, picked, context=None, shape_prior=0.01, max_iter=10, tol=1e-6, min_model_obs=12,
-            fallback_t_low=None, **options):
-        """Phase two: the model fit of a :meth:`select`-ed chunk (waits for the shared shape)."""
+    def fit(self, picked, context=None, shape_prior=0.01, max_iter=MAX_ITER, tol_deg=TOL_DEG, spare_obs=SPARE_OBS,
+            min_shape_obs=MIN_SHAPE_OBS, **options):
+        """Phase two: the model fit of a :meth:`select`-ed chunk (waits for the shared shape).
+
+        Each pixel takes the richest model its observations determine: the biquadratic with the
+        prior where its observations exceed the fit's effective parameters by ``spare_obs``,
+        else the shared shape alone (a multiple of the object's shape, 3 parameters), else the
+        Lambertian fit of the selected observations.
+        """
         obs, valid, lights = picked["obs"], picked["valid"], picked["lights"]
         base, weights, b = picked["base"], picked["weights"], picked["b"]
         prior = (context or {}).get("shape")   # may wait for the shared shape
-        if not picked["switched"] and (context or {}).get("select"):
-            # the context was not ready when this chunk selected, and the check failed
-            base, weights, b = select_observations(obs, valid, lights, **{**options, **context.get("select")})
         status, used = base_status(weights, base)
         h, y = half_vectors(lights)
         coeffs = np.zeros((len(obs), 3, 3))
         coeffs[:, 0, 0] = 1.0
         rss = np.sum(weights * (obs - shading(b, lights)) ** 2, axis=1)
-        fit = used >= min_model_obs
-        status[(used >= MIN_OBS) & ~fit] = STATUS["lambert_fallback"]
-        active = np.flatnonzero(fit)
-        ridge = shape_prior if prior is not None else 1e-10
-        if lights.ndim == 2:
-            b_fit, c_fit, rss_fit, moving = alternate_shared(obs[active], weights[active], b[active], lights, h, y,
-                                                             prior=prior, shape_prior=ridge, max_iter=max_iter,
-                                                             tol=tol)
-            b[active], coeffs[active] = b_fit, c_fit
-            rss[active] = np.where(np.isnan(rss_fit), rss[active], rss_fit)
-            active = active[moving]
-        else:
-            active = alternate_per_pixel(obs, weights, b, coeffs, rss, active, lights, h, y, prior, ridge, max_iter,
-                                         tol)
-        status[active] = STATUS["not_converged"]
+        status[used >= MIN_OBS] = STATUS["lambert_fallback"]
+        models = [(LAMBERT_SHAPE if prior is None else prior, shape_prior or 0.0, STATUS["ok"])]
+        if prior is not None:
+            models.append((prior, SHAPE_ONLY, STATUS["shared_shape"]))
+        todo = np.flatnonzero(used >= max(min_shape_obs, MIN_OBS + 1))
+        for shape, strength, code in models:
+            if todo.size == 0:
+                break
+            sub = (lights, h, y) if lights.ndim == 2 else (lights[todo], h[todo], y[todo])
+            # with 11 + spare_obs observations or more every model is determined: no dof needed
+            b_fit, c_fit, rss_fit, moving, dof = fit_pixels(obs[todo], weights[todo], b[todo], *sub, prior=shape,
+                                                            shape_prior=strength, max_iter=max_iter,
+                                                            tol_deg=tol_deg, dof_below=11 + spare_obs)
+            take = np.isfinite(rss_fit) & np.isfinite(b_fit).all(axis=1) & (used[todo] - dof >= spare_obs)
+            idx = todo[take]
+            b[idx], coeffs[idx], rss[idx] = b_fit[take], c_fit[take], rss_fit[take]
+            status[idx] = np.where(moving[take], STATUS["not_converged"], code)
+            todo = todo[~take]
         return {"b": b, "status": status, "used": used, "rss": rss, "params": to_paper_order(coeffs)}
 
 

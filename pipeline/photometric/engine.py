@@ -26,9 +26,11 @@ from .anchor import highlight_mismatch
 from .methods import STATUS
 from .near_lights import PointLights, observations_at
 
-__all__ = ["Context", "known_context", "OnePhase", "phases_of", "gatherer", "prepare_context", "solve_chunk",
-           "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE"]
+__all__ = ["Context", "OnePhase", "phases_of", "gatherer", "prepare_context", "solve_chunk",
+           "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS"]
 
+#: what a method's context reports in the result: the shared shape and its check
+SHARED_KEYS = ("shape_paper", "shape_check")
 #: Pixels per chunk (memory per chunk is about CHUNK_SIZE x K x 200 bytes)
 CHUNK_SIZE = 2048
 #: Bytes of observations (float64) a worker holds selected ahead while the shared context is
@@ -66,15 +68,6 @@ class Context:
 
     def get(self, key, default=None):
         return default if self._future is None else self._future.result().get(key, default)
-
-    def known(self):
-        """The context if it is ready, else an empty dict (never waits)."""
-        return self._future.result() if self._future is not None and self._future.done() else {}
-
-
-def known_context(context):
-    """What a context (a plain dict, a :class:`Context` or None) holds already, without waiting."""
-    return context.known() if isinstance(context, Context) else (context or {})
 
 
 def gatherer(flat_images, flat_valid, lights, offset=0):
@@ -178,7 +171,7 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
     maps : dict
         :func:`allocate_maps`' maps, filled.
     shared : dict
-        ``shape_paper``, ``shape_check`` and ``select`` of the method's context (None when absent).
+        The :data:`SHARED_KEYS` of the method's context (None when absent).
     mismatch : ndarray (M,)
         The specular-peak mismatches (empty without ``anchor``).
     """
@@ -229,5 +222,5 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
                           if hasattr(solver, "prepare") else None)
         for future in [pool.submit(work) for _ in range(n_workers)]:
             future.result()
-    shared = {key: context.get(key) for key in ("shape_paper", "shape_check", "select")}
+    shared = {key: context.get(key) for key in SHARED_KEYS}
     return out, shared, (np.concatenate(mismatch) if mismatch else np.zeros(0))

@@ -233,15 +233,15 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
 def result_from_maps(maps, mask, method, options, shared, seconds=0.0):
     """The :class:`PhotometricResult` of filled maps and a method's shared context.
 
-    ``shared`` holds the context's ``shape_paper``, ``shape_check`` and ``select`` (the
-    darkest-fraction fallback's options): the check is reported in ``options["shape_check"]``,
-    and after a fallback the options say what ran.
+    ``shared`` holds the context's ``shape_paper`` and ``shape_check``: the check is reported in
+    ``options["shape_check"]``, and after its fallback the options say that the shared shape was
+    not used.
     """
     options = dict(options)
     if shared.get("shape_check") is not None:
         options["shape_check"] = shared["shape_check"]
-    if shared.get("select"):  # the darkest-fraction fallback ran: report the options that did
-        options.update(shared["select"], shape_prior=0.0)
+        if "fallback" in shared["shape_check"]:
+            options["shared_shape"] = False
     return PhotometricResult(
         normals=maps["normals"], mask=mask, status=maps["status"], albedo=maps["albedo"], params=maps["params"],
         residual=maps["residual"], used=maps["used"], method=method, options=options, seconds=seconds,
@@ -249,20 +249,20 @@ def result_from_maps(maps, mask, method, options, shared, seconds=0.0):
 
 
 def _anchored(solve, lights, insist=False):
-    """``anchor_scale`` on ``solve``, except after the darkest-fraction fallback.
+    """``anchor_scale`` on ``solve``, except when the object failed the single-material check.
 
-    The fallback (:meth:`pipeline.photometric.biquadratic.Biquadratic.prepare`) is known only
-    after the first solve. Its normals are then measured and reported (as the tiled stage
-    reports them, from the same first verdict) but not corrected unless the caller insists
-    (``specular_anchor=True``): the one measured false correction of the anchor came from a
-    darkest-rule solve, and an object that failed the one-material check is where a local
-    specular bias is likeliest to pass for a global one.
+    The check (:meth:`pipeline.photometric.biquadratic.Biquadratic.prepare`) is known only after
+    the first solve. Its normals are then measured and reported (as the tiled stage reports
+    them, from the same first verdict) but not corrected unless the caller insists
+    (``specular_anchor=True``): an object of several materials is where a local specular bias is
+    likeliest to pass for a global one (the one measured false correction of the anchor came
+    from such an object).
     """
     first = solve(lights)
-    if first[0][1]["select"] and not insist:
+    if "fallback" in (first[0][1]["shape_check"] or {}) and not insist:
         info = first_verdict(first[1])
         if info["anchor"] == "to correct":
-            info["anchor"] = "not corrected: darkest fallback"
+            info["anchor"] = "not corrected: several materials"
         return first[0], info
     replay = [first]
     return anchor_scale(lambda run_lights: replay.pop() if replay else solve(run_lights), lights)

@@ -1,19 +1,18 @@
-"""Compiled per-pixel kernels (numba) for biquadratic photometric stereo with shared lights.
+"""Compiled per-pixel kernels (numba) for biquadratic photometric stereo.
 
-:func:`alternate_shared_jit` does the work of :func:`pipeline.photometric.alternation.alternate_numpy`
-(fit the 9 shape parameters -> one Gauss-Newton normal step -> residual -> keep or stop), with
-the same mathematics and stopping rule, pixel by pixel in one pass over each pixel's used
-observations instead of many passes over (N, K) arrays. Everything is float64; each pixel's
-result depends on that pixel alone, so it is the same whatever chunk it is computed in.
+:func:`fit_pixels_jit` does the work of :func:`pipeline.photometric.pixel_fit.fit_pixels_numpy`
+(each pixel's normal and 9 coefficients by Levenberg-Marquardt, the same mathematics and
+stopping rule), pixel by pixel in one pass over each pixel's used observations per step
+instead of many passes over (N, K) arrays. Lights may be shared (K, 3) or per pixel
+(N, K, 3). Everything is float64; each pixel's result depends on that pixel alone, so it is the
+same whatever chunk it is computed in.
 
-Nothing is compiled at import: numba is imported and the kernels are compiled (or loaded from
-numba's on-disk cache, ``cache=True``) at the first call, under a lock, so concurrent chunk
+Nothing is compiled at import: the kernels are compiled (or loaded from numba's on-disk cache)
+at the first call through :class:`pipeline.jit.Compiled`, under a lock, so concurrent chunk
 threads wait for one compilation. The kernels release the GIL (``nogil``), so the chunk
-threads of :func:`pipeline.photometric.estimate_normals` run them on all cores.
-
-The numpy implementation stays the reference: ``PSRIG_NO_JIT=1`` in the environment selects it,
-and if numba is missing or compiling/caching fails, :func:`kernels` warns once and returns None,
-and callers use numpy.
+threads of the engine run them on all cores. If numba is missing or compiling fails,
+:func:`kernels` warns once and returns None, and callers use numpy (``PSRIG_NO_JIT=1`` selects
+numpy too).
 """
 
 import math
@@ -22,7 +21,11 @@ import numpy as np
 
 from ..jit import ENV_NO_JIT, Compiled, njit
 
-__all__ = ["jit_enabled", "kernels", "alternate_shared_jit", "compile_seconds", "ENV_NO_JIT", "KERNELS"]
+__all__ = ["jit_enabled", "kernels", "fit_pixels_jit", "select_robust_jit", "compile_seconds", "ENV_NO_JIT",
+           "KERNELS"]
+
+_MU0, _MU_MAX = 1e-6, 1e8   # as pipeline.photometric.pixel_fit
+_K_IN, _MIN_DET = 2.5, 1e-3  # as pipeline.photometric.selection.consensus_weights
 
 
 def jit_enabled():
@@ -36,12 +39,7 @@ def compile_seconds():
 
 
 def kernels():
-    """The compiled kernels (a dict of numba dispatchers), or None when they are unavailable.
-
-    The first call imports numba and compiles, or loads from numba's cache; a failure there
-    (numba missing, an unwritable cache, a compiler error) gives one RuntimeWarning and None
-    from then on (:class:`pipeline.jit.Compiled`).
-    """
+    """The compiled kernels (a dict of numba dispatchers), or None when they are unavailable."""
     return KERNELS.get()
 
 
@@ -51,52 +49,62 @@ def _build():
     # while numba compiles (and the pure-Python originals are kept for a later rebuild).
     compiled = {name: njit(func) for name, func in _PY.items()}
     globals().update(compiled)
-    _warm_up(compiled["_alternate_kernel"])
+    _warm_up(compiled)
     return compiled
 
 
-def _warm_up(kernel):
-    """Compile for the argument types :func:`alternate_shared_jit` always passes."""
+def _warm_up(compiled):
+    """Compile for the argument types the entry points always pass (shared and per-pixel lights)."""
     rng = np.random.default_rng(0)
     lights = np.array([[0.0, 0.0, 1.0], [0.5, 0.0, 0.866], [0.0, 0.5, 0.866], [-0.5, 0.0, 0.866]])
+    h = _unit(lights + np.array([0.0, 0.0, 1.0]))
     obs = rng.random((2, 4)) + 0.5
-    args = _arguments(obs, np.ones((2, 4)), np.array([[0.0, 0.0, 1.0]] * 2), lights,
-                      _unit(lights + np.array([0.0, 0.0, 1.0])), None, 1e-10)
-    outputs = _outputs(2)
-    kernel(*args, 2, 1e-6, *outputs)
+    for per_pixel in (False, True):
+        lt = np.broadcast_to(lights, (2, 4, 3)).copy() if per_pixel else lights
+        ht = np.broadcast_to(h, (2, 4, 3)).copy() if per_pixel else h
+        fit_pixels_jit(obs, np.ones((2, 4)), np.array([[0.0, 0.0, 1.0]] * 2), lt, ht, np.sum(lt * ht, axis=-1),
+                       1e-10 * np.eye(9), 2, 0.01, compiled=compiled)
+        select_robust_jit(obs, lt, np.ones((2, 4)), 2.5, 2.5, 1, 3, np.array([[0, 1, 2], [1, 2, 3]]), 0.02,
+                          compiled)
 
 
 # ----------------------------------------------------------------------------- Python entry
-def alternate_shared_jit(obs, weights, b, lights, h, y, prior=None, shape_prior=0.0, max_iter=10, tol=1e-6):
-    """The compiled :func:`pipeline.photometric.alternation.alternate_numpy`; None if kernels are unavailable.
+def fit_pixels_jit(obs, weights, b, lights, h, y, penalty, max_iter, tol_deg, dof_below=np.inf, compiled=None):
+    """The compiled :func:`pipeline.photometric.pixel_fit.fit_pixels_numpy`; None if unavailable.
 
-    Parameters and the first four results are those of
-    :func:`pipeline.photometric.alternation.alternate_shared`; the fifth result, iterations (N,) int,
-    is the number of shape fits done per pixel. ``y`` is recomputed from ``lights`` and ``h``
-    only through its powers, passed as given.
+    Parameters and results are those of :func:`pipeline.photometric.pixel_fit.fit_pixels`,
+    ``penalty`` (9, 9) from :func:`pipeline.photometric.pixel_fit.penalty_matrix`; the effective
+    parameters are computed only for pixels with fewer than ``dof_below`` observations (11
+    elsewhere, their most).
     """
-    compiled = kernels()
+    compiled = compiled or kernels()
     if compiled is None:
         return None
-    n = len(b)
-    args = _arguments(obs, weights, b, lights, h, prior, max(shape_prior, 1e-10), y)
-    outputs = _outputs(n)
-    compiled["_alternate_kernel"](*args, int(max_iter), float(tol), *outputs)
-    b_out, c_out, rss, moving, iterations = outputs
-    return b_out, c_out.reshape(n, 3, 3), rss, moving.astype(bool), iterations
-
-
-def _arguments(obs, weights, b, lights, h, prior, ridge, y=None):
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731 - one fixed signature
-    lights, h = f64(lights), f64(h)
-    y = np.sum(lights * h, axis=1) if y is None else f64(y)
-    ypow = np.stack([np.ones_like(y), y, y * y, y * y * y, y * y * y * y], axis=1)
-    prior9 = np.zeros(9) if prior is None else f64(prior).reshape(9)
-    return f64(obs), f64(weights), f64(b), lights, h, ypow, prior9, float(ridge)
+    n = len(b)
+    y = np.asarray(y, float)
+    ypow = np.stack([np.ones_like(y), y, y * y, y * y * y, y * y * y * y], axis=-1)
+    b_out, c_out, rss, moving, dof = np.empty((n, 3)), np.empty((n, 9)), np.empty(n), np.empty(n, np.uint8), \
+        np.empty(n)
+    kernel = compiled["_fit_per_pixel" if np.ndim(lights) == 3 else "_fit_shared"]
+    kernel(f64(obs), f64(weights), f64(b), f64(lights), f64(h), f64(ypow), f64(penalty), int(max_iter),
+           math.cos(math.radians(tol_deg)), float(min(dof_below, 1e9)), b_out, c_out, rss, moving, dof)
+    return b_out, c_out.reshape(n, 3, 3), rss, moving.astype(bool), dof
 
 
-def _outputs(n):
-    return np.empty((n, 3)), np.empty((n, 9)), np.empty(n), np.empty(n, np.uint8), np.empty(n, np.int64)
+def select_robust_jit(obs, lights, base, k_high, k_low, iterations, min_obs, triplets, scale_floor, compiled=None):
+    """The compiled :func:`pipeline.photometric.selection.select_robust` (its start and its MAD
+    rounds for every pixel in one pass); returns (weights (N, K), b (N, 3)), or None when the
+    kernels are unavailable."""
+    compiled = compiled or kernels()
+    if compiled is None:
+        return None
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731 - one fixed signature
+    weights, b = np.empty(obs.shape), np.empty((len(obs), 3))
+    kernel = compiled["_select_per_pixel" if np.ndim(lights) == 3 else "_select_shared"]
+    kernel(f64(obs), f64(lights), f64(base), float(k_high), float(k_low), int(iterations), int(min_obs),
+           np.ascontiguousarray(triplets, dtype=np.int64), float(scale_floor), weights, b)
+    return weights, b
 
 
 def _unit(v):
@@ -105,18 +113,17 @@ def _unit(v):
 
 # ----------------------------------------------------------------------------- kernels
 # Written in plain Python over scalars so that numba compiles them; each loops over one
-# pixel's K observations at most a few times per iteration.
+# pixel's K observations a few times per step.
 
-def _alternate_kernel(obs, weights, b0, lights, h, ypow, prior, ridge, max_iter, tol,
-                      b_out, c_out, rss_out, moving_out, iter_out):
-    """Every pixel of obs (N, K): compact its used observations, then :func:`_pixel_alternation`."""
+def _fit_shared(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol, dof_below, b_out, c_out, rss_out,
+                moving_out, dof_out):
+    """Every pixel of obs (N, K) under shared lights (K, 3): compact its used observations, fit."""
     n_pix, k = obs.shape
     o, w = np.empty(k), np.empty(k)
     lt, ht, yp = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 5))
-    xs, cs = np.empty(k), np.empty(k)
+    work = np.empty((4, k))
     for p in range(n_pix):
         m = 0
-        # Zero-weight observations add exact zeros to every sum: leave them out.
         for j in range(k):
             if weights[p, j] != 0.0:
                 o[m], w[m] = obs[p, j], weights[p, j]
@@ -125,193 +132,419 @@ def _alternate_kernel(obs, weights, b0, lights, h, ypow, prior, ridge, max_iter,
                 for i in range(5):
                     yp[m, i] = ypow[j, i]
                 m += 1
-        for i in range(3):
-            b_out[p, i] = b0[p, i]
-        rss, moving, iterations = _pixel_alternation(o, w, lt, ht, yp, xs, cs, m, b_out[p], prior, ridge,
-                                                     max_iter, tol, c_out[p])
-        rss_out[p], moving_out[p], iter_out[p] = rss, moving, iterations
+        _fit_one(o, w, lt, ht, yp, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, b_out[p], c_out[p], rss_out,
+                 moving_out, dof_out, p)
 
 
-def _pixel_alternation(o, w, lt, ht, yp, xs, cs, m, b, prior, ridge, max_iter, tol, coef):
-    """One pixel's alternation; updates b (3,) and coef (9,) in place; returns (rss, moving, iterations)."""
-    scale = 1e-300
-    for j in range(m):
-        scale += w[j] * o[j] * o[j]
-    for i in range(9):
-        coef[i] = 0.0
-    coef[0] = 1.0
-    albedo = _geometry(b, lt, ht, xs, cs, m)
-    rss = np.nan
-    trial = np.empty(9)
-    b_new = np.empty(3)
-    t, u = np.empty(m), np.empty(m)
-    for it in range(max_iter):
-        _fit_shape(o, w, yp, xs, cs, m, albedo, prior, ridge, trial, t, u)
-        before = _normal_step(o, w, lt, ht, yp, xs, cs, m, b, albedo, trial, b_new)
-        albedo_new = _geometry(b_new, lt, ht, xs, cs, m)
-        after = _residual(o, w, yp, xs, cs, m, albedo_new, trial)
-        better = math.isfinite(after) and after <= before * (1 + 1e-9)
-        if better:
-            for i in range(3):
-                b[i] = b_new[i]
-        for i in range(9):
-            coef[i] = trial[i]
-        rss = after if better else before
-        if not (better and abs(before - after) > tol * scale):
-            return rss, 0, it + 1
-        albedo = albedo_new
-    return rss, 1, max_iter
+def _fit_per_pixel(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol, dof_below, b_out, c_out,
+                   rss_out, moving_out, dof_out):
+    """:func:`_fit_shared` for per-pixel lights (N, K, 3), half vectors and y powers."""
+    n_pix, k = obs.shape
+    o, w = np.empty(k), np.empty(k)
+    lt, ht, yp = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 5))
+    work = np.empty((4, k))
+    for p in range(n_pix):
+        m = 0
+        for j in range(k):
+            if weights[p, j] != 0.0:
+                o[m], w[m] = obs[p, j], weights[p, j]
+                for i in range(3):
+                    lt[m, i], ht[m, i] = lights[p, j, i], h[p, j, i]
+                for i in range(5):
+                    yp[m, i] = ypow[p, j, i]
+                m += 1
+        _fit_one(o, w, lt, ht, yp, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, b_out[p], c_out[p], rss_out,
+                 moving_out, dof_out, p)
 
 
-def _geometry(b, lt, ht, xs, cs, m):
-    """Fill xs = n . h and cs = n . l for n = b / |b|; return |b|."""
-    albedo = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
-    d = max(albedo, 1e-300)
-    n0, n1, n2 = b[0] / d, b[1] / d, b[2] / d
-    for j in range(m):
-        xs[j] = n0 * ht[j, 0] + n1 * ht[j, 1] + n2 * ht[j, 2]
-        cs[j] = n0 * lt[j, 0] + n1 * lt[j, 1] + n2 * lt[j, 2]
-    return albedo
-
-
-def _fit_shape(o, w, yp, xs, cs, m, albedo, prior, ridge, coef, t, u):
-    """fit_pixel_shapes for one pixel: moments, ridge toward albedo x prior, 9 x 9 solve.
-
-    t and u (K,) are scratch.
-    """
-    for j in range(m):
-        s = cs[j]
-        t[j] = w[j] * s * s
-        u[j] = w[j] * o[j] * s
-    # Normal-matrix entries are the moments sum_k w s^2 x^a y^c (a, c <= 4), one power of x
-    # per pass with the y powers summed side by side (independent additions pipeline well).
-    mom = np.empty((5, 5))
+def _fit_one(o, w, lt, ht, yp, m, b0, penalty, max_iter, cos_tol, dof_below, work, b_out, c_out, rss_out, moving_out,
+             dof_out, p):
+    """One pixel: the linear start for c, then Levenberg-Marquardt steps; writes its results."""
+    norm = math.sqrt(b0[0] * b0[0] + b0[1] * b0[1] + b0[2] * b0[2])
+    n = np.empty(3)
+    for i in range(3):
+        n[i] = b0[i] / max(norm, 1e-300)
+    xs, cs = work[0], work[1]
+    _geometry(n, lt, ht, xs, cs, m)
+    data = np.empty((9, 9))
     rhs = np.empty(9)
-    for a in range(5):
-        _power_sums(t, yp, m, mom[a], 5)
-        if a < 3:
-            _power_sums(u, yp, m, rhs[3 * a:3 * a + 3], 3)
-        for j in range(m):
-            t[j] *= xs[j]
-            u[j] *= xs[j]
-    normal = np.empty((9, 9))
-    trace = 0.0
-    for r in range(9):
-        for c in range(9):
-            normal[r, c] = mom[r // 3 + c // 3, r % 3 + c % 3]
-        trace += normal[r, r]
-    diag = ridge * (trace / 9.0 + 1e-300)
-    for r in range(9):
-        normal[r, r] += diag
-        rhs[r] += diag * (albedo * prior[r])
-    _cholesky_solve9(normal, rhs, coef)
-    d = max(albedo, 1e-300)
-    for r in range(9):
-        coef[r] /= d
+    _coefficient_system(o, w, yp, xs, cs, m, data, rhs)
+    scale = 1e-300
+    for i in range(9):
+        scale += data[i, i] / 9.0
+    pen = np.empty((9, 9))
+    a9 = np.empty((9, 9))
+    for i in range(9):
+        for j in range(9):
+            pen[i, j] = scale * penalty[i, j]
+            a9[i, j] = data[i, j] + pen[i, j]
+    c = np.empty(9)
+    _cholesky_solve(a9, rhs, c, 9)
+    cost = _cost(o, w, yp, xs, cs, m, c, pen)
+    moving = 1
+    if not math.isfinite(cost):
+        moving = 0
+    else:
+        moving = _iterate(o, w, lt, ht, yp, m, n, c, pen, cost, max_iter, cos_tol, work)
+    _geometry(n, lt, ht, xs, cs, m)
+    rss, albedo = _rss_albedo(o, w, yp, xs, cs, m, c)
+    if m < dof_below:
+        _coefficient_system(o, w, yp, xs, cs, m, data, rhs)
+        dof_out[p] = 2.0 + _hat_trace(data, pen)
+    else:
+        dof_out[p] = 11.0
+    if not (albedo > 0.0 and math.isfinite(albedo)):
+        albedo = 1.0
+    for i in range(3):
+        b_out[i] = n[i] * albedo
+    for i in range(9):
+        c_out[i] = c[i] / albedo
+    rss_out[p] = rss
+    moving_out[p] = moving
 
 
-def _power_sums(t, yp, m, out, count):
-    """out[c] = sum_k t_k y_k^c for c < count (3 or 5)."""
-    s0 = s1 = s2 = s3 = s4 = 0.0
+def _iterate(o, w, lt, ht, yp, m, n, c, pen, cost, max_iter, cos_tol, work):
+    """Levenberg-Marquardt steps on (n, c) in place; returns 1 while the normal still turns."""
+    a = np.empty((11, 11))
+    e = np.empty(11)
+    step = np.empty(11)
+    n_try, c_try = np.empty(3), np.empty(9)
+    t1, t2 = np.empty(3), np.empty(3)
+    mu = _MU0
+    xs, cs, xt, ct = work[0], work[1], work[2], work[3]
+    for it in range(max_iter):
+        _tangents(n, t1, t2)
+        _geometry(n, lt, ht, xs, cs, m)
+        _step_system(o, w, lt, ht, yp, xs, cs, m, c, t1, t2, pen, a, e)
+        for i in range(11):
+            a[i, i] += mu * a[i, i] + 1e-300
+        _cholesky_solve(a, e, step, 11)
+        s0, s1 = step[0], step[1]
+        norm = 0.0
+        for i in range(3):
+            n_try[i] = n[i] + s0 * t1[i] + s1 * t2[i]
+            norm += n_try[i] * n_try[i]
+        norm = math.sqrt(norm)
+        for i in range(3):
+            n_try[i] /= norm
+        for i in range(9):
+            c_try[i] = c[i] + step[2 + i]
+        _geometry(n_try, lt, ht, xt, ct, m)
+        cost_try = _cost(o, w, yp, xt, ct, m, c_try, pen)
+        if math.isfinite(cost_try) and cost_try <= cost:
+            turned = n[0] * n_try[0] + n[1] * n_try[1] + n[2] * n_try[2]
+            for i in range(3):
+                n[i] = n_try[i]
+            for i in range(9):
+                c[i] = c_try[i]
+            cost = cost_try
+            mu = max(mu / 10.0, 1e-12)
+            if turned >= cos_tol:
+                return 0
+        else:
+            mu *= 10.0
+            if mu > _MU_MAX:
+                return 0
+    return 1
+
+
+def _geometry(n, lt, ht, xs, cs, m):
+    """Fill xs = n . h and cs = n . l for the unit normal n."""
     for j in range(m):
-        v = t[j]
-        s0 += v
-        s1 += v * yp[j, 1]
-        s2 += v * yp[j, 2]
-        if count > 3:
-            s3 += v * yp[j, 3]
-            s4 += v * yp[j, 4]
-    out[0], out[1], out[2] = s0, s1, s2
-    if count > 3:
-        out[3], out[4] = s3, s4
+        xs[j] = n[0] * ht[j, 0] + n[1] * ht[j, 1] + n[2] * ht[j, 2]
+        cs[j] = n[0] * lt[j, 0] + n[1] * lt[j, 1] + n[2] * lt[j, 2]
 
 
-def _cholesky_solve9(a, rhs, out):
-    """Solve the symmetric positive definite a (9, 9) out = rhs; NaN if not positive definite.
+def _tangents(n, t1, t2):
+    """t1, t2: unit vectors orthogonal to n and to each other."""
+    ax, ay, az = abs(n[0]), abs(n[1]), abs(n[2])
+    e0, e1, e2 = (1.0, 0.0, 0.0) if ax <= ay and ax <= az else ((0.0, 1.0, 0.0) if ay <= az else (0.0, 0.0, 1.0))
+    u0, u1, u2 = n[1] * e2 - n[2] * e1, n[2] * e0 - n[0] * e2, n[0] * e1 - n[1] * e0
+    norm = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    t1[0], t1[1], t1[2] = u0 / norm, u1 / norm, u2 / norm
+    t2[0] = n[1] * t1[2] - n[2] * t1[1]
+    t2[1] = n[2] * t1[0] - n[0] * t1[2]
+    t2[2] = n[0] * t1[1] - n[1] * t1[0]
+
+
+def _coefficient_system(o, w, yp, xs, cs, m, data, rhs):
+    """data (9, 9) = sum_k w s^2 basis basis^T and rhs (9,) = sum_k w s o basis, basis = x^a y^c."""
+    mom = np.zeros((5, 5))
+    for i in range(9):
+        rhs[i] = 0.0
+    for j in range(m):
+        x, s = xs[j], cs[j]
+        t = w[j] * s * s
+        u = w[j] * s * o[j]
+        xp = 1.0
+        for a in range(5):
+            for cc in range(5):
+                mom[a, cc] += t * xp * yp[j, cc]
+            if a < 3:
+                for cc in range(3):
+                    rhs[3 * a + cc] += u * xp * yp[j, cc]
+            xp *= x
+    for r in range(9):
+        for q in range(9):
+            data[r, q] = mom[r // 3 + q // 3, r % 3 + q % 3]
+
+
+def _step_system(o, w, lt, ht, yp, xs, cs, m, c, t1, t2, pen, a, e):
+    """The Gauss-Newton normal equations a (11, 11), e (11,) at (n, c), the penalty included."""
+    mom = np.zeros((5, 5))
+    for i in range(11):
+        e[i] = 0.0
+        for q in range(11):
+            a[i, q] = 0.0
+    for j in range(m):
+        x, s = xs[j], cs[j]
+        y1, y2 = yp[j, 1], yp[j, 2]
+        q0 = c[0] + c[1] * y1 + c[2] * y2
+        q1 = c[3] + c[4] * y1 + c[5] * y2
+        q2 = c[6] + c[7] * y1 + c[8] * y2
+        rho = q0 + x * (q1 + x * q2)
+        slope = q1 + 2.0 * x * q2
+        res = o[j] - rho * s
+        h1 = t1[0] * ht[j, 0] + t1[1] * ht[j, 1] + t1[2] * ht[j, 2]
+        l1 = t1[0] * lt[j, 0] + t1[1] * lt[j, 1] + t1[2] * lt[j, 2]
+        h2 = t2[0] * ht[j, 0] + t2[1] * ht[j, 1] + t2[2] * ht[j, 2]
+        l2 = t2[0] * lt[j, 0] + t2[1] * lt[j, 1] + t2[2] * lt[j, 2]
+        g1 = slope * s * h1 + rho * l1
+        g2 = slope * s * h2 + rho * l2
+        wj = w[j]
+        a[0, 0] += wj * g1 * g1
+        a[0, 1] += wj * g1 * g2
+        a[1, 1] += wj * g2 * g2
+        e[0] += wj * g1 * res
+        e[1] += wj * g2 * res
+        t = wj * s * s
+        u1, u2, ur = wj * g1 * s, wj * g2 * s, wj * res * s
+        xp = 1.0
+        for aa in range(5):
+            for cc in range(5):
+                mom[aa, cc] += t * xp * yp[j, cc]
+            if aa < 3:
+                for cc in range(3):
+                    v = xp * yp[j, cc]
+                    a[0, 2 + 3 * aa + cc] += u1 * v
+                    a[1, 2 + 3 * aa + cc] += u2 * v
+                    e[2 + 3 * aa + cc] += ur * v
+            xp *= x
+    a[1, 0] = a[0, 1]
+    for r in range(9):
+        a[2 + r, 0] = a[0, 2 + r]
+        a[2 + r, 1] = a[1, 2 + r]
+        penalty_c = 0.0
+        for q in range(9):
+            a[2 + r, 2 + q] = mom[r // 3 + q // 3, r % 3 + q % 3] + pen[r, q]
+            penalty_c += pen[r, q] * c[q]
+        e[2 + r] -= penalty_c
+
+
+def _cost(o, w, yp, xs, cs, m, c, pen):
+    """sum_k w (obs - R s)^2 + c' pen c."""
+    total = 0.0
+    for j in range(m):
+        x = xs[j]
+        y1, y2 = yp[j, 1], yp[j, 2]
+        rho = (c[0] + c[1] * y1 + c[2] * y2) + x * ((c[3] + c[4] * y1 + c[5] * y2) + x * (c[6] + c[7] * y1 + c[8] * y2))
+        r = o[j] - rho * cs[j]
+        total += w[j] * r * r
+    for i in range(9):
+        for q in range(9):
+            total += c[i] * pen[i, q] * c[q]
+    return total
+
+
+def _rss_albedo(o, w, yp, xs, cs, m, c):
+    """The data term and the mean of R over the used observations."""
+    rss = 0.0
+    level = 0.0
+    count = 0.0
+    for j in range(m):
+        x = xs[j]
+        y1, y2 = yp[j, 1], yp[j, 2]
+        rho = (c[0] + c[1] * y1 + c[2] * y2) + x * ((c[3] + c[4] * y1 + c[5] * y2) + x * (c[6] + c[7] * y1 + c[8] * y2))
+        r = o[j] - rho * cs[j]
+        rss += w[j] * r * r
+        level += w[j] * rho
+        count += w[j]
+    return rss, level / max(count, 1e-300)
+
+
+def _hat_trace(data, pen):
+    """trace((data + pen)^-1 data): the coefficients' effective number of parameters."""
+    a = np.empty((9, 9))
+    for i in range(9):
+        for q in range(9):
+            a[i, q] = data[i, q] + pen[i, q]
+    col = np.empty(9)
+    out = np.empty(9)
+    total = 0.0
+    factor = a.copy()
+    for q in range(9):
+        for i in range(9):
+            col[i] = data[i, q]
+        for i in range(9):
+            for r in range(9):
+                factor[i, r] = a[i, r]
+        _cholesky_solve(factor, col, out, 9)
+        total += out[q]
+    return total
+
+
+def _cholesky_solve(a, rhs, out, size):
+    """Solve the symmetric positive definite a (size, size) out = rhs; NaN if not positive definite.
 
     a is overwritten by its Cholesky factor (lower triangle).
     """
-    for j in range(9):
+    for j in range(size):
         d = a[j, j]
         for k in range(j):
             d -= a[j, k] * a[j, k]
         if not d > 0.0:
-            for i in range(9):
+            for i in range(size):
                 out[i] = np.nan
             return
         d = math.sqrt(d)
         a[j, j] = d
-        for i in range(j + 1, 9):
+        for i in range(j + 1, size):
             v = a[i, j]
             for k in range(j):
                 v -= a[i, k] * a[j, k]
             a[i, j] = v / d
-    for i in range(9):
+    for i in range(size):
         v = rhs[i]
         for k in range(i):
             v -= a[i, k] * out[k]
         out[i] = v / a[i, i]
-    for i in range(8, -1, -1):
+    for i in range(size - 1, -1, -1):
         v = out[i]
-        for k in range(i + 1, 9):
+        for k in range(i + 1, size):
             v -= a[k, i] * out[k]
         out[i] = v / a[i, i]
 
 
-def _normal_step(o, w, lt, ht, yp, xs, cs, m, b, albedo, coef, b_new):
-    """One Gauss-Newton step on b for shape coef (9,); fills b_new (3,); returns the residual before.
+# ----------------------------------------------------------------------------- selection kernels
+def _select_shared(obs, lights, base, k_high, k_low, iterations, min_obs, triplets, floor, w_out, b_out):
+    """:func:`_select_one` for every pixel under shared lights (K, 3)."""
+    n_pix, k = obs.shape
+    scratch, sort32, packed = np.empty(k), np.empty(k, np.float32), np.empty((4, k))
+    for p in range(n_pix):
+        _select_one(obs[p], lights, base[p], k_high, k_low, iterations, min_obs, triplets, floor, w_out[p], b_out[p],
+                    scratch, sort32, packed)
 
-    J_k = rho l_k + n.l_k rho'(x) (h_k - x n) is d(model)/d b, rho' = d rho / d x.
-    """
-    d = max(albedo, 1e-300)
-    n0, n1, n2 = b[0] / d, b[1] / d, b[2] / d
+
+def _select_per_pixel(obs, lights, base, k_high, k_low, iterations, min_obs, triplets, floor, w_out, b_out):
+    """:func:`_select_one` for every pixel under per-pixel lights (N, K, 3)."""
+    n_pix, k = obs.shape
+    scratch, sort32, packed = np.empty(k), np.empty(k, np.float32), np.empty((4, k))
+    for p in range(n_pix):
+        _select_one(obs[p], lights[p], base[p], k_high, k_low, iterations, min_obs, triplets, floor, w_out[p],
+                    b_out[p], scratch, sort32, packed)
+
+
+def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, floor, w, b, scratch, sort32, packed):
+    """One pixel's consensus start and MAD rounds (see pipeline.photometric.selection)."""
+    k = len(o)
+    m = 0
+    for j in range(k):
+        w[j] = lit[j]
+        if lit[j] > 0.0:
+            m += 1
+    b0, b1, b2, best = _consensus(o, lt, lit, m, triplets, scratch, packed)
+    if math.isfinite(best):
+        scale = max(1.4826 * (1.0 + 5.0 / max(m - 3, 1)) * math.sqrt(best),
+                    floor * math.sqrt(b0 * b0 + b1 * b1 + b2 * b2))
+        kept = 0
+        for j in range(k):
+            inside = lit[j] > 0.0 and abs(o[j] - (b0 * lt[j, 0] + b1 * lt[j, 1] + b2 * lt[j, 2])) <= _K_IN * scale
+            w[j] = 1.0 if inside else 0.0
+            kept += inside
+        if kept < 3:
+            for j in range(k):
+                w[j] = lit[j]
+    _lambert(o, lt, w, b)
+    for _ in range(iterations):
+        c = 0
+        for j in range(k):
+            scratch[j] = o[j] - (b[0] * lt[j, 0] + b[1] * lt[j, 1] + b[2] * lt[j, 2])
+            if w[j] > 0.0:
+                sort32[c] = np.float32(abs(scratch[j]))
+                c += 1
+        scale = 1.4826 * np.float64(_kth_smallest(sort32, c, c // 2)) + 1e-9 if c > 0 else 1e-9
+        scale = max(scale, floor * math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]))
+        kept = 0
+        for j in range(k):
+            if lit[j] > 0.0 and scratch[j] < k_high * scale and scratch[j] > -k_low * scale:
+                kept += 1
+        for j in range(k):
+            if kept >= min_obs:
+                w[j] = 1.0 if (lit[j] > 0.0 and scratch[j] < k_high * scale and scratch[j] > -k_low * scale) else 0.0
+            else:
+                w[j] = lit[j]
+        _lambert(o, lt, w, b)
+
+
+def _consensus(o, lt, lit, m, triplets, scratch, packed):
+    """The least-median-of-squares triplet: its b and median squared residual (inf if none)."""
+    k = len(o)
+    # the lit observations, contiguous: every triplet's residuals are a branch-free pass
+    oc, l0, l1, l2 = packed[0], packed[1], packed[2], packed[3]
+    c = 0
+    for j in range(k):
+        if lit[j] > 0.0:
+            oc[c], l0[c], l1[c], l2[c] = o[j], lt[j, 0], lt[j, 1], lt[j, 2]
+            c += 1
+    half = m // 2
+    best = np.inf
+    b0 = b1 = b2 = 0.0
+    for t in range(len(triplets)):
+        i0, i1, i2 = triplets[t, 0], triplets[t, 1], triplets[t, 2]
+        if not (lit[i0] > 0.0 and lit[i1] > 0.0 and lit[i2] > 0.0):
+            continue
+        det = (lt[i0, 0] * (lt[i1, 1] * lt[i2, 2] - lt[i1, 2] * lt[i2, 1])
+               - lt[i0, 1] * (lt[i1, 0] * lt[i2, 2] - lt[i1, 2] * lt[i2, 0])
+               + lt[i0, 2] * (lt[i1, 0] * lt[i2, 1] - lt[i1, 1] * lt[i2, 0]))
+        if not abs(det) > _MIN_DET:
+            continue
+        x0, x1, x2 = _solve3(lt[i0, 0], lt[i0, 1], lt[i0, 2], lt[i1, 0], lt[i1, 1], lt[i1, 2],
+                             lt[i2, 0], lt[i2, 1], lt[i2, 2], o[i0], o[i1], o[i2])
+        if not (math.isfinite(x0) and math.isfinite(x1) and math.isfinite(x2) and x2 > 0.0):
+            continue
+        below = 0
+        for j in range(m):
+            r = oc[j] - (x0 * l0[j] + x1 * l1[j] + x2 * l2[j])
+            r = r * r
+            scratch[j] = r
+            below += r < best
+        if below <= half:     # the median cannot be below the best: no selection needed
+            continue
+        med = _kth_smallest(scratch, m, half)
+        if med < best:
+            best, b0, b1, b2 = med, x0, x1, x2
+    return b0, b1, b2, best
+
+
+def _lambert(o, lt, w, b):
+    """b = the weighted Lambertian least squares (as pipeline.photometric.lambert.lambert_weighted)."""
     a00 = a01 = a02 = a11 = a12 = a22 = 0.0
-    g0 = g1 = g2 = 0.0
-    before = 0.0
-    for j in range(m):
-        x, cos = xs[j], cs[j]
-        q0, q1, q2 = _shape_polynomials(coef, yp[j, 1], yp[j, 2])
-        rho = (q2 * x + q1) * x + q0
-        res = o[j] - rho * cos * albedo
-        before += w[j] * res * res
-        c = cos * (q1 + 2.0 * x * q2)
-        j0 = rho * lt[j, 0] + c * (ht[j, 0] - x * n0)
-        j1 = rho * lt[j, 1] + c * (ht[j, 1] - x * n1)
-        j2 = rho * lt[j, 2] + c * (ht[j, 2] - x * n2)
-        wj0, wj1, wj2 = w[j] * j0, w[j] * j1, w[j] * j2
-        a00 += wj0 * j0
-        a01 += wj0 * j1
-        a02 += wj0 * j2
-        a11 += wj1 * j1
-        a12 += wj1 * j2
-        a22 += wj2 * j2
-        g0 += wj0 * res
-        g1 += wj1 * res
-        g2 += wj2 * res
+    r0 = r1 = r2 = 0.0
+    for j in range(len(o)):
+        if w[j] != 0.0:
+            l0, l1, l2 = lt[j, 0], lt[j, 1], lt[j, 2]
+            wj = w[j]
+            a00 += wj * l0 * l0
+            a01 += wj * l0 * l1
+            a02 += wj * l0 * l2
+            a11 += wj * l1 * l1
+            a12 += wj * l1 * l2
+            a22 += wj * l2 * l2
+            r0 += wj * o[j] * l0
+            r1 += wj * o[j] * l1
+            r2 += wj * o[j] * l2
     ridge = 1e-12 + 1e-9 * (a00 + a11 + a22)
-    a00 += ridge
-    a11 += ridge
-    a22 += ridge
-    d0, d1, d2 = _solve3(a00, a01, a02, a01, a11, a12, a02, a12, a22, g0, g1, g2)
-    b_new[0], b_new[1], b_new[2] = b[0] + d0, b[1] + d1, b[2] + d2
-    return before
-
-
-def _shape_polynomials(coef, y, y2):
-    """q_a(y) = sum_c C[a, c] y^c for a = 0, 1, 2."""
-    return (coef[0] + coef[1] * y + coef[2] * y2, coef[3] + coef[4] * y + coef[5] * y2,
-            coef[6] + coef[7] * y + coef[8] * y2)
-
-
-def _residual(o, w, yp, xs, cs, m, albedo, coef):
-    """sum_k w (obs - rho(x, y) n.l albedo)^2 for the current xs, cs."""
-    total = 0.0
-    for j in range(m):
-        x = xs[j]
-        q0, q1, q2 = _shape_polynomials(coef, yp[j, 1], yp[j, 2])
-        r = o[j] - ((q2 * x + q1) * x + q0) * cs[j] * albedo
-        total += w[j] * r * r
-    return total
+    b[0], b[1], b[2] = _solve3(a00 + ridge, a01, a02, a01, a11 + ridge, a12, a02, a12, a22 + ridge, r0, r1, r2)
 
 
 def _solve3(a00, a01, a02, a10, a11, a12, a20, a21, a22, r0, r1, r2):
@@ -324,8 +557,33 @@ def _solve3(a00, a01, a02, a10, a11, a12, a20, a21, a22, r0, r1, r2):
             (c20 * r0 + c21 * r1 + c22 * r2) / det)
 
 
-_PY = {name: globals()[name] for name in ("_alternate_kernel", "_pixel_alternation", "_geometry", "_fit_shape",
-                                         "_power_sums", "_cholesky_solve9", "_normal_step", "_shape_polynomials", "_residual",
-                                         "_solve3")}
+def _kth_smallest(a, n, kth):
+    """The kth smallest of a[:n] (a is reordered): Hoare's selection."""
+    lo, hi = 0, n - 1
+    while lo < hi:
+        pivot = a[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if kth <= j:
+            hi = j
+        elif kth >= i:
+            lo = i
+        else:
+            break
+    return a[kth]
+
+
+_PY = {name: globals()[name] for name in ("_fit_shared", "_fit_per_pixel", "_fit_one", "_iterate", "_geometry",
+                                         "_tangents", "_coefficient_system", "_step_system", "_cost", "_rss_albedo",
+                                         "_hat_trace", "_cholesky_solve", "_select_shared", "_select_per_pixel",
+                                         "_select_one", "_consensus", "_lambert", "_solve3", "_kth_smallest")}
 #: The compiled kernels, built on first use (:func:`kernels`)
 KERNELS = Compiled("photometric-stereo kernels", _build)

@@ -18,14 +18,15 @@ import numpy as np
 
 from ..registry import Registry
 from ..reflectance import MODELS, Geometry, get_model
-from .alternation import unit
+from .model import unit
 from .lambert import lambert_weighted
 from .selection import select_observations
 
 __all__ = ["METHODS", "get_method", "STATUS", "STATUS_NAMES", "MIN_OBS", "base_status", "shading",
            "lambert_method", "lambert_low_method", "ModelAlternation", "register_model_methods"]
 
-STATUS = {"background": 0, "ok": 1, "shadowed": 2, "too_few": 3, "not_converged": 4, "lambert_fallback": 5}
+STATUS = {"background": 0, "ok": 1, "shadowed": 2, "too_few": 3, "not_converged": 4, "lambert_fallback": 5,
+          "shared_shape": 6}
 STATUS_NAMES = {code: name for name, code in STATUS.items()}
 MIN_OBS = 3
 

@@ -27,7 +27,7 @@ from ..integrate import integrate_normals
 from .near_lights import PointLights
 from .methods import STATUS
 
-__all__ = ["refine_near_depth", "RELIEF_PIXELS", "SAMPLE_PIXELS", "SCAN_STEPS"]
+__all__ = ["refine_near_depth", "RELIEF_PIXELS", "SAMPLE_PIXELS", "SCAN_STEPS", "PASSES", "MAX_RATIO"]
 
 #: pixels whose mean residual scores an offset (a fixed random sample of the mask)
 SAMPLE_PIXELS = 4000
@@ -35,11 +35,16 @@ SAMPLE_PIXELS = 4000
 RELIEF_PIXELS = 250_000
 #: statuses without a normal to integrate
 _UNSOLVED = (STATUS["background"], STATUS["too_few"])
+#: depth refinements at most, each kept only while it cuts the mean residual to at most
+#: MAX_RATIO of the last one. On the tests' raised dome under lights 220 px away (lambert-low):
+#: 10.4 degrees on the plane, 0.31 after one pass, 0.007 after two, which then stop.
+PASSES = 3
+MAX_RATIO = 0.8
 #: offsets scanned over +-half the median light distance before the golden-section search
 SCAN_STEPS = 9
 
 
-def refine_near_depth(solve, lights, mask, *, passes=1, sample_pixels=SAMPLE_PIXELS, seed=0, tol=0.5):
+def refine_near_depth(solve, lights, mask, *, passes=PASSES, sample_pixels=SAMPLE_PIXELS, seed=0, tol=0.5):
     """Solve with near lights, then again at the depth the first solve's normals give.
 
     Parameters
@@ -53,7 +58,8 @@ def refine_near_depth(solve, lights, mask, *, passes=1, sample_pixels=SAMPLE_PIX
     mask : ndarray (H, W) bool
         Object pixels.
     passes : int
-        Depth refinements after the first solve (0 = the first solve only).
+        Depth refinements after the first solve at most (0 = the first solve only); they stop
+        when one does not cut the mean residual to :data:`MAX_RATIO` of the last one.
     sample_pixels, seed
         The pixel sample that scores offsets.
     tol : float
@@ -81,7 +87,10 @@ def refine_near_depth(solve, lights, mask, *, passes=1, sample_pixels=SAMPLE_PIX
         record["passes"] += 1
         if not residuals[-1] < residuals[record["kept"]]:
             break  # by its own measure the relief did not help: keep the better solve
+        gain = residuals[-1] / residuals[record["kept"]]
         result, record["kept"], record["offset_px"] = refined, record["passes"], round(float(offset), 2)
+        if gain > MAX_RATIO:
+            break  # converged: another pass would change little
     record["residual"] = [round(float(r), 6) for r in residuals]
     return result, record
 

@@ -10,8 +10,8 @@ pulls each pixel's parameters toward albedo x this shape.
 
 import numpy as np
 
-from .alternation import X_POWER, Y_POWER, alternate_per_pixel, alternate_shared, cosines, normal_system, \
-    powers, shape_and_slope
+from .model import X_POWER, Y_POWER, cosines, normal_system, powers, shape_and_slope
+from .pixel_fit import fit_pixels
 
 __all__ = ["fit_shared_shape", "single_material_check", "ONE_MATERIAL_RATIO", "MIN_CHECK_OBS"]
 
@@ -151,7 +151,7 @@ def single_material_check(obs, weights, b, b_shared, shape, lights, h, y):
     b : ndarray (N, 3)
         Their initial albedo-scaled normals; ``b_shared`` the ones fitted with ``shape`` (3, 3).
     lights, h, y
-        As for :func:`pipeline.photometric.alternation.alternate_shared` (or per pixel).
+        As for :func:`pipeline.photometric.pixel_fit.fit_pixels` (or per pixel).
 
     Returns
     -------
@@ -164,15 +164,10 @@ def single_material_check(obs, weights, b, b_shared, shape, lights, h, y):
     y_arr = np.asarray(y, float)
     y3 = powers(y_arr, 2)
     shared = _shared_state(obs, weights, b_shared, shape, lights, h, y3)[0]
-    if lights.ndim == 2:
-        free = float(np.nansum(alternate_shared(obs, weights, b, lights, h, y_arr)[2]))
-    else:  # per-pixel lights: the same alternation, with the per-pixel steps
-        # (free shapes at the initial normals alone leave more residual: on the two-material
-        # object of tests/pipeline/photometric/test_shape_check.py the ratio read 3.47 there, 6.24 alternated)
-        b_free, coeffs, rss = b.copy(), np.zeros((len(obs), 3, 3)), np.zeros(len(obs))
-        alternate_per_pixel(obs, weights, b_free, coeffs, rss, np.arange(len(obs)), lights, h, y_arr,
-                            None, 0.0, 10, 1e-6)
-        free = float(np.nansum(rss))
+    # free shapes fitted with their normals (at the initial normals alone they leave more
+    # residual: on the two-material object of tests/pipeline/photometric/test_shape_check.py
+    # the ratio read 3.47 there, 6.24 fitted)
+    free = float(np.nansum(fit_pixels(obs, weights, b, lights, h, y_arr)[2]))
     used = np.sum(weights > 0, axis=1)
     expected = float(np.sum(np.maximum(used - 3, 1)) / np.sum(np.maximum(used - 12, 1)))
     ratio = shared / max(free, 1e-300)

@@ -23,7 +23,7 @@ from ..progress import progress as progress_bar
 from ..yamlio import plain
 from .estimate import estimate_normals
 from .methods import STATUS
-from .near_depth import refine_near_depth
+from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
 
 __all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "load_object_stack", "object_mask",
@@ -37,7 +37,7 @@ PAPER_NAMES = ("brdf.A_x2y2", "brdf.B_x2y", "brdf.C_x2", "brdf.D_xy2", "brdf.E_x
                "brdf.G_y2", "brdf.H_y", "brdf.I_1")
 #: status_vis.png colour of each status code (RGB)
 STATUS_COLOURS = np.array([[0, 0, 0], [60, 170, 60], [40, 40, 160], [200, 160, 0], [220, 40, 40],
-                           [150, 80, 200]], np.uint8)
+                           [150, 80, 200], [0, 160, 170]], np.uint8)
 #: what :mod:`pipeline.photometric.anchor` reports in the result's options, kept in the stage record
 ANCHOR_KEYS = ("cone_scale", "anchor", "mismatch_deg", "highlight_pixels", "probe_mismatch_deg",
                "final_mismatch_deg")
@@ -220,7 +220,7 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
         return None
     images, valid = load_object_stack(session, run.frames, run.lights)
     mask = object_mask(session, run, images)
-    passes = 1 if run.model == "near" and near_depth else 0
+    passes = PASSES if run.model == "near" and near_depth else 0
     with progress_bar(total=int(mask.sum()) * (1 + passes), desc="normals", unit="px",
                       disable=not show_progress) as bar:
         def solve(directions, pixels):
@@ -261,7 +261,7 @@ def _write_outputs(session, result):
     write_normal_png(session.path("normals/normals.png"), result.normals, mask & (result.status != 0))
     write_mask(session.path("normals/mask.png"), mask)
     write_image(session.path("normals/status.png"), result.status, bits=8)
-    write_image(session.path("normals/status_vis.png"), STATUS_COLOURS[np.minimum(result.status, 5)], bits=8)
+    write_image(session.path("normals/status_vis.png"), STATUS_COLOURS[np.minimum(result.status, len(STATUS_COLOURS) - 1)], bits=8)
     return [f"normals/{n}" for n in ("normals.exr", "albedo.exr", "residual.exr", "brdf.exr", "normals.png",
                                       "mask.png", "status.png", "status_vis.png")]
 

@@ -37,7 +37,8 @@ from ..errors import InputError, StageError
 from ..paths import LIGHTS
 from ..session import Session
 from .anchor import first_verdict
-from .engine import CHUNK_SIZE, allocate_maps, gatherer, phases_of, prepare_context, scatter_chunk, solve_chunk
+from .engine import CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context, scatter_chunk, \
+    solve_chunk
 from .estimate import check_lights, plan_solve, result_from_maps
 from .stage import NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
 
@@ -260,7 +261,7 @@ def assemble_normals(plan, tile_paths=None):
             shutil.rmtree(plan.scratch(), ignore_errors=True)
             return WHOLE_IMAGE
         options.update(verdict)
-    shared = {key: plan.context.get(key) for key in ("shape_paper", "shape_check", "select")}
+    shared = {key: plan.context.get(key) for key in SHARED_KEYS}
     record = record_normals(session, plan.run, result_from_maps(out, mask, plan.solve.method, options, shared))
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record

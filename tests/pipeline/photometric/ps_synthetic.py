@@ -15,7 +15,7 @@ def selected_problem(size, count, seed, min_elevation_deg, roughness, noise):
     Returns (obs (N, K), weights (N, K), b (N, 3), lights (K, 3), h (K, 3), y (K,)) for the
     pixels with at least 12 selected observations.
     """
-    from pipeline.photometric.alternation import half_vectors
+    from pipeline.photometric.model import half_vectors
     from pipeline.photometric.selection import resolve_selection, select_observations
 
     normals, mask = sphere_normals(size)

@@ -45,10 +45,11 @@ def test_the_integrated_depth_corrects_an_object_off_the_plane():
 
     plane, _ = refine_near_depth(solve, lights, mask, passes=0)
     result, record = refine_near_depth(solve, lights, mask)
-    # measured: 6.86 deg on the plane, 0.18 at the found depth; offset 48.28 px for 48.55
+    # measured: 10.4 deg on the plane, 0.31 after one pass, 0.007 after the second, then
+    # converged; offset 48.51 px for 48.55
     assert _error(plane, normals, mask) > 3.0
-    assert _error(result, normals, mask) < 0.3
-    assert record["passes"] == 1 and record["kept"] == 1
+    assert _error(result, normals, mask) < 0.05
+    assert record["kept"] == 2 and record["passes"] >= 2   # a third pass found nothing better
     assert record["residual"][1] < record["residual"][0]
     mean_height = depth[mask].mean()
     assert abs(record["offset_px"] - mean_height) < 2.0, (record, mean_height)
@@ -106,7 +107,7 @@ def test_normals_stage_places_near_lights_at_the_depth_and_can_be_told_not_to(tm
 
     assert main(["normals", str(session.root), "--method", "lambert-low"]) == 0
     record = Session.open(session.root).stage("normals")
-    assert record["near_depth"]["passes"] == 1 and "near_depth" not in record["params"]
+    assert record["near_depth"]["passes"] >= 1 and "near_depth" not in record["params"]
     at_depth = error()
     assert main(["normals", str(session.root), "--method", "lambert-low", "--near-depth", "off"]) == 0
     record = Session.open(session.root).stage("normals")
@@ -128,6 +129,6 @@ def test_a_large_normal_map_is_integrated_on_blocks(monkeypatch):
     # max_pixels 400 (RELIEF_PIXELS is its default): 3512 solved pixels go on 3 x 3 blocks
     monkeypatch.setattr(near_depth._relief, "__defaults__", (400,))
     result, record = refine_near_depth(solve, lights, mask)
-    # measured: 0.18 deg whole and on blocks; offset 48.28 px whole, 48.34 on blocks
+    # measured: a few hundredths of a degree whole and on blocks
     assert _error(result, normals, mask) < 0.3
     assert abs(record["offset_px"] - depth[mask].mean()) < 2.0

@@ -1,0 +1,219 @@
+"""Each pixel's normal and 9 biquadratic coefficients, fitted jointly (paper Eq. 2, 8, 9).
+
+The paper alternates: fix the normal and fit the coefficients, fix rho and solve the normal.
+Under a narrow cone of lights the tilt of the normal and the falloff of rho are nearly
+interchangeable (on DiLiGenT cat the tilt columns lie almost inside the span of the shape
+columns, squared canonical correlation 0.998), so that alternation creeps: on cat it moved
+the error from 5.33 to 4.97 degrees between its 3rd and 100th iteration. Here both are one
+Levenberg-Marquardt problem in 11 unknowns per pixel: a rotation of the normal in its tangent
+plane (2) and the 9 coefficients c, with the data term sum_k w (obs - R(x, y) s)^2, R = the
+biquadratic with coefficients c (albedo included), so it converges in a few steps and a pixel
+stops when its normal turns by less than ``tol_deg``.
+
+The prior is scale-free: with the object's shared shape P (from
+:mod:`pipeline.photometric.shared_shape`) it penalises only the part of c that is not a
+multiple of P, ``shape_prior * scale * |Q c|^2`` with Q the projector orthogonal to P and
+scale the mean diagonal of the pixel's coefficient normal matrix, so the albedo is free and
+the albedo/shape gauge cannot drift. Without a prior a tiny ridge on c keeps the solves
+defined. The albedo reported is the mean of R over the used observations, and the shape
+C = c / albedo has mean 1 there.
+
+:func:`fit_pixels` runs the compiled kernel (:mod:`pipeline.photometric.kernels`) unless it
+is unavailable or ``PSRIG_NO_JIT`` is set; :func:`fit_pixels_numpy` is the reference.
+"""
+
+import numpy as np
+
+from .kernels import fit_pixels_jit, jit_enabled
+from .model import MOMENT_INDEX, X_POWER, Y_POWER, cosines, powers, unit
+
+__all__ = ["fit_pixels", "fit_pixels_numpy", "penalty_matrix", "TOL_DEG", "MAX_ITER", "MIN_RIDGE"]
+
+#: a pixel stops when its normal turns by less than this in a step (degrees)
+TOL_DEG = 0.1
+#: Levenberg-Marquardt steps at most (accepted or not); measured: DiLiGenT ball, cat and reading
+#: pixels stop after 3-6
+MAX_ITER = 50
+#: the ridge on c without a prior (keeps the 9 x 9 block positive definite)
+MIN_RIDGE = 1e-10
+#: damping: start, and the bound past which a pixel that finds no better step stops
+_MU0, _MU_MAX = 1e-6, 1e8
+
+
+def penalty_matrix(prior, shape_prior):
+    """(9, 9) matrix of the prior's penalty per unit of scale: ``shape_prior`` x the projector
+    orthogonal to ``prior`` (3, 3), or ``MIN_RIDGE`` x I without a prior."""
+    if prior is None:
+        return MIN_RIDGE * np.eye(9)
+    p = np.asarray(prior, float).reshape(9)
+    return max(shape_prior, MIN_RIDGE) * (np.eye(9) - np.outer(p, p) / max(p @ p, 1e-300))
+
+
+def fit_pixels(obs, weights, b, lights, h, y, prior=None, shape_prior=0.0, max_iter=MAX_ITER, tol_deg=TOL_DEG,
+               dof_below=np.inf):
+    """Fit every pixel's normal and coefficients; see the module docstring.
+
+    Parameters
+    ----------
+    obs, weights : ndarray (N, K)
+        Observations (light intensities divided out) and 0/1 weights of the used ones.
+    b : ndarray (N, 3)
+        Starting albedo-scaled normals (camera frame), e.g. the Lambertian fit.
+    lights, h : ndarray (K, 3) or (N, K, 3)
+        Unit light directions and half vectors, shared or per pixel.
+    y : ndarray (K,) or (N, K)
+        l . h.
+    prior : ndarray (3, 3), optional
+        The object's shared shape.
+    shape_prior : float
+        Strength of the pull toward multiples of ``prior``.
+    max_iter : int
+    tol_deg : float
+
+    Returns
+    -------
+    b : ndarray (N, 3)
+        Albedo-scaled unit normals.
+    coeffs : ndarray (N, 3, 3)
+        Shapes C with mean 1 over the pixel's used observations.
+    rss : ndarray (N,)
+        Weighted residual sum of squares (the data term).
+    moving : ndarray (N,) bool
+        Pixels whose normal still turned by ``tol_deg`` or more in their last step.
+    dof : ndarray (N,)
+        Effective number of parameters: 2 for the normal plus the trace of the coefficients'
+        hat matrix (9 without a prior, about 1 with a strong one); 11, their most, for pixels
+        with ``dof_below`` observations or more (not computed there).
+    """
+    penalty = penalty_matrix(prior, shape_prior)
+    fast = fit_pixels_jit(obs, weights, b, lights, h, y, penalty, max_iter, tol_deg, dof_below) if jit_enabled() \
+        else None
+    if fast is not None:
+        return fast
+    return fit_pixels_numpy(obs, weights, b, lights, h, y, penalty, max_iter, tol_deg, dof_below)
+
+
+def fit_pixels_numpy(obs, weights, b, lights, h, y, penalty, max_iter=MAX_ITER, tol_deg=TOL_DEG, dof_below=np.inf):
+    """:func:`fit_pixels` in numpy, batched over pixels (``penalty`` from :func:`penalty_matrix`)."""
+    obs, weights = np.asarray(obs, float), np.asarray(weights, float)
+    n = unit(np.asarray(b, float))
+    y5 = powers(np.asarray(y, float), 4)
+    x, s = cosines(n, lights, h)
+    data = _coefficient_matrix(weights, s, x, y5)
+    scale = np.trace(data, axis1=1, axis2=2) / 9.0 + 1e-300
+    pen = scale[:, None, None] * penalty
+    c = np.linalg.solve(data + pen, _coefficient_rhs(weights, s, x, y5, obs)[..., None])[..., 0]
+    cost = _cost(obs, weights, n, c, lights, h, y5, pen)
+    mu = np.full(len(obs), _MU0)
+    active = np.flatnonzero(np.isfinite(cost))
+    cos_tol = np.cos(np.radians(tol_deg))
+    for _ in range(max_iter):
+        if active.size == 0:
+            break
+        sub = _rows(active, lights, h, y5)
+        step, t1, t2 = _lm_step(obs[active], weights[active], n[active], c[active], *sub, pen[active], mu[active])
+        n_try = unit(n[active] + step[:, :1] * t1 + step[:, 1:2] * t2)
+        c_try = c[active] + step[:, 2:]
+        cost_try = _cost(obs[active], weights[active], n_try, c_try, *sub, pen[active])
+        better = np.isfinite(cost_try) & (cost_try <= cost[active])
+        turned = np.sum(n_try * n[active], axis=1)
+        keep = active[better]
+        n[keep], c[keep], cost[keep] = n_try[better], c_try[better], cost_try[better]
+        mu[active] = np.where(better, np.maximum(mu[active] / 10, 1e-12), mu[active] * 10)
+        done = (better & (turned >= cos_tol)) | (mu[active] > _MU_MAX)
+        active = active[~done]
+    moving = np.zeros(len(obs), bool)
+    moving[active] = True
+    return _results(obs, weights, n, c, lights, h, y5, pen, moving, dof_below)
+
+
+def _rows(idx, lights, h, y5):
+    if lights.ndim == 2:
+        return lights, h, y5
+    return lights[idx], h[idx], y5[idx]
+
+
+def _project(weighted, ypow):
+    """sum_k weighted[n, k] ypow[(n,) k, j] -> (N, J) for shared or per-pixel y powers."""
+    return weighted @ ypow if ypow.ndim == 2 else np.einsum("nk,nkj->nj", weighted, ypow)
+
+
+def _coefficient_matrix(weights, s, x, y5):
+    """sum_k w s^2 x^(a+a') y^(c+c') as (N, 9, 9), from the 25 moments."""
+    term = weights * s * s
+    moments = np.empty((len(x), 5, 5))
+    for i in range(5):
+        moments[:, i, :] = _project(term, y5)
+        term = term * x
+    return np.take(moments.reshape(-1, 25), MOMENT_INDEX, axis=1).reshape(-1, 9, 9)
+
+
+def _coefficient_rhs(weights, s, x, y5, values):
+    """sum_k w s values x^a y^c as (N, 9)."""
+    term = weights * s * values
+    out = np.empty((len(x), 3, 3))
+    for a in range(3):
+        out[:, a, :] = _project(term, y5[..., :3])
+        term = term * x
+    return out.reshape(-1, 9)
+
+
+def _surface(n, c, lights, h, y5):
+    """x, s, R and dR/dx, each (N, K), for normals n (N, 3) and coefficients c (N, 9)."""
+    x, s = cosines(n, lights, h)
+    q = [_project_coefficients(c[:, 3 * a:3 * a + 3], y5) for a in range(3)]
+    r = q[0] + x * (q[1] + x * q[2])
+    return x, s, r, q[1] + 2.0 * x * q[2]
+
+
+def _project_coefficients(c3, y5):
+    """sum_c c3[n, c] y^c -> (N, K)."""
+    return c3 @ y5[:, :3].T if y5.ndim == 2 else np.einsum("nc,nkc->nk", c3, y5[..., :3])
+
+
+def _cost(obs, weights, n, c, lights, h, y5, pen):
+    _, s, r, _ = _surface(n, c, lights, h, y5)
+    resid = obs - r * s
+    return np.sum(weights * resid * resid, axis=1) + np.einsum("ni,nij,nj->n", c, pen, c)
+
+
+def _tangents(n):
+    """Two unit vectors (N, 3) spanning the plane orthogonal to each normal."""
+    axis = np.zeros_like(n)
+    axis[np.arange(len(n)), np.argmin(np.abs(n), axis=1)] = 1.0
+    t1 = unit(np.cross(n, axis))
+    return t1, np.cross(n, t1)
+
+
+def _lm_step(obs, weights, n, c, lights, h, y5, pen, mu):
+    """The damped Gauss-Newton step (N, 11): tangent rotation (2) and coefficient change (9)."""
+    x, s, r, slope = _surface(n, c, lights, h, y5)
+    resid = obs - r * s
+    t1, t2 = _tangents(n)
+    g = [slope * s * cosines(t, lights, h)[0] + r * cosines(t, lights, h)[1] for t in (t1, t2)]
+    a = np.zeros((len(obs), 11, 11))
+    e = np.zeros((len(obs), 11))
+    for i in range(2):
+        wg = weights * g[i]
+        for j in range(i, 2):
+            a[:, i, j] = a[:, j, i] = np.sum(wg * g[j], axis=1)
+        a[:, i, 2:] = a[:, 2:, i] = _coefficient_rhs(wg, s, x, y5, 1.0)
+        e[:, i] = np.sum(wg * resid, axis=1)
+    a[:, 2:, 2:] = _coefficient_matrix(weights, s, x, y5) + pen
+    e[:, 2:] = _coefficient_rhs(weights, s, x, y5, resid) - np.einsum("nij,nj->ni", pen, c)
+    diagonal = np.einsum("nii->ni", a)
+    damped = a + (mu[:, None] * diagonal + 1e-300)[:, :, None] * np.eye(11)
+    return np.linalg.solve(damped, e[..., None])[..., 0], t1, t2
+
+
+def _results(obs, weights, n, c, lights, h, y5, pen, moving, dof_below):
+    x, s, r, _ = _surface(n, c, lights, h, y5)
+    resid = obs - r * s
+    rss = np.sum(weights * resid * resid, axis=1)
+    data = _coefficient_matrix(weights, s, x, y5)
+    hat = np.linalg.solve(data + pen + 1e-300 * np.eye(9), data)
+    dof = np.where(np.sum(weights > 0, axis=1) < dof_below, 2.0 + np.trace(hat, axis1=1, axis2=2), 11.0)
+    albedo = np.sum(weights * r, axis=1) / np.maximum(np.sum(weights, axis=1), 1e-300)
+    albedo = np.where(np.isfinite(albedo) & (albedo > 0), albedo, 1.0)
+    coeffs = (c / albedo[:, None]).reshape(-1, 3, 3)
+    return n * albedo[:, None], coeffs, rss, moving, dof
