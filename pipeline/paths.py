@@ -5,8 +5,8 @@ on where it lies. Paths are POSIX-style and relative to the session folder
 (:meth:`pipeline.session.Session.path` resolves and checks them).
 """
 
-__all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP",
-           "ERROR_MAP", "EVAL", "DEPTH", "MESH", "SHADED", "INTEGRATION", "REPORT", "TRUTH_LIGHTS",
+__all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP", "OBSERVATIONS",
+           "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION", "REPORT", "TRUTH_LIGHTS",
            "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK"]
 
 #: calibrate stage (or an importer) -> normals, report, eval: the lights in use
@@ -22,6 +22,8 @@ NORMALS_MASK = "normals/mask.png"
 ALBEDO = "normals/albedo.exr"
 RESIDUAL = "normals/residual.exr"
 STATUS_MAP = "normals/status.png"
+#: per pixel, the number of observations the fit used (16-bit)
+OBSERVATIONS = "normals/observations.png"
 #: eval -> report
 ERROR_MAP = "normals/error.png"
 EVAL = "normals/eval.yaml"
@@ -29,6 +31,9 @@ EVAL = "normals/eval.yaml"
 #: integrate stage -> report, eval
 DEPTH = "depth/depth.exr"
 MESH = "depth/mesh.ply"
+MESH_OBJ = "depth/mesh.obj"
+#: the albedo as the OBJ's texture (mesh.mtl beside it names it)
+MESH_TEXTURE = "depth/albedo.png"
 SHADED = "depth/shaded.png"
 INTEGRATION = "depth/integration.yaml"
 
