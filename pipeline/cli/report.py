@@ -1,8 +1,5 @@
 """``psrig report SESSION [--force]``: report/index.html of a session."""
 
-from ..report import INDEX, report_session
-from ..session import Session
-
 __all__ = ["register"]
 
 
@@ -22,6 +19,9 @@ def register(subparsers):
 
 
 def run(args):
+    from ..report import INDEX, report_session
+    from ..session import Session
+
     session = Session.open(args.session)
     record = report_session(session, force=args.force, evaluate=not args.no_eval)
     state = "up to date" if record is None else f"written in {record['seconds']:.1f} s"
