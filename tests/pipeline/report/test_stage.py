@@ -52,13 +52,17 @@ def test_report_links_are_relative_and_decode(processed):
         assert not parsed.scheme and not parsed.netloc and not link.startswith("/"), link
         target = (report_dir / unquote(parsed.path)).resolve()
         assert target.is_relative_to(report_dir) and target.is_file(), link
-        assert read_image(target).size > 0
+        if tag == "script":
+            assert target.suffix == ".js" and target.stat().st_size > 0
+        else:
+            assert read_image(target).size > 0
     for rel in record["outputs"]:
         assert processed.path(rel).is_file()
     text = index.read_text(encoding="utf-8")
     for word in ("decode", "normals", "integrate", "mean_deg", "frames/object_007.png",
-                 "maps/error.png", "maps/shaded.png"):
+                 "maps/error.png", "maps/shaded.png", "maps/depth.png", 'class="psrig-mesh"'):
         assert word in text
+    assert [src for tag, src in links if tag == "script"] == ["mesh_depth.js", "viewer.js"]
 
 
 def test_report_skips_when_current_and_reruns_on_change(processed, capsys):
