@@ -7,7 +7,7 @@ colour bar and legend beside it), :func:`figures`, :func:`warnings_box`, :func:`
 
 import html
 
-__all__ = ["page", "table", "figure", "figures", "warnings_box", "details", "href", "escape"]
+__all__ = ["page", "table", "figure", "figures", "colour_bar", "warnings_box", "details", "href", "escape"]
 
 escape = html.escape
 
@@ -52,10 +52,10 @@ def table(header, rows, css=""):
     return f"<table{cls}><tr>{head}</tr>{body}</table>"
 
 
-def _bar(fig, bars, base):
-    if fig.scale is None or fig.scale.name not in bars:
+def colour_bar(scale, bars, base="report/"):
+    """A colour bar with the top value above it and the bottom value below ("" without one)."""
+    if scale is None or scale.name not in bars:
         return ""
-    scale = fig.scale
     return (f'<div class="bar"><span>&ge; {html.escape(scale.label(scale.top))}</span>'
             f'<img src="{href(bars[scale.name], base)}" alt="colour bar {html.escape(scale.name)}">'
             f"<span>{html.escape(scale.label(scale.bottom))}</span></div>")
@@ -67,7 +67,7 @@ def figure(fig, bars, base="report/", css=""):
     legend = f'<div class="legend">{fig.legend}</div>' if fig.legend else ""
     return (f'<figure class="{css}"><div class="picture"><a href="{src}"><img src="{src}" '
             f'alt="{html.escape(fig.caption)}"></a><figcaption>{html.escape(fig.caption)}</figcaption></div>'
-            f"{_bar(fig, bars, base)}{legend}</figure>")
+            f"{colour_bar(fig.scale, bars, base)}{legend}</figure>")
 
 
 def figures(figs, bars=None, base="report/", css=""):

@@ -13,7 +13,7 @@ from .details import flatten, format_value, record_rows, stage_warnings
 from .html import details, escape, figures, table, warnings_box
 from .lights import hemisphere_svg, light_rows
 
-__all__ = ["lights_in_use", "header", "stages_table", "scores_section", "charts_section", "lights_section",
+__all__ = ["lights_in_use", "lights_origin", "header", "stages_table", "scores_section", "charts_section", "lights_section",
            "details_section", "mesh_section", "all_warnings"]
 
 
@@ -23,7 +23,7 @@ def lights_in_use(session):
     return read_lights_yaml(path) if path.is_file() else None
 
 
-def _lights_origin(session, lights):
+def lights_origin(session, lights):
     """Where the lights in use came from: the lights file's own account, not the manifest's
     ``lights.source`` (which stays 'nominal' after a calibration)."""
     if lights is None:
@@ -40,7 +40,7 @@ def header(session, lights, now):
     normals = session.stage("normals") or {}
     method = (normals.get("params") or {}).get("method", "not run")
     return (f"<p>Session <code>{escape(str(session.root.resolve()))}</code>: {len(session.frames())} frames; "
-            f"<b>lights</b>: {escape(_lights_origin(session, lights))}; <b>normals</b>: {escape(str(method))}; "
+            f"<b>lights</b>: {escape(lights_origin(session, lights))}; <b>normals</b>: {escape(str(method))}; "
             f"report written {escape(now)}.</p>")
 
 
