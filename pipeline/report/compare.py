@@ -49,9 +49,9 @@ def _labels(sessions):
     return [f"{name} ({method})" for name, method in zip(names, methods)]
 
 
-def _summary_table(sessions, labels, scores, all_maps):
+def _summary_table(sessions, labels, scores):
     rows = []
-    for session, label, score, maps in zip(sessions, labels, scores, all_maps):
+    for session, label, score in zip(sessions, labels, scores):
         normals = session.stage("normals") or {}
         settings = "<br>".join(f"<code>{html.escape(k)} = {html.escape(format_value(v))}</code>"
                                for k, v in flatten(normals.get("params") or {})) or "not run"
@@ -61,8 +61,9 @@ def _summary_table(sessions, labels, scores, all_maps):
         n = score.get("normals") or {}
         error = (f"mean {n['mean_deg']:.2f}, median {n['median_deg']:.2f}, p90 {n['p90_deg']:.2f} deg"
                  if n else "no ground truth")
-        warned = len(sections.all_warnings(session, sections.lights_in_use(session)))
-        rows.append([html.escape(label), settings, html.escape(sections.lights_origin(session, sections.lights_in_use(session))),
+        lights = sections.lights_in_use(session)
+        warned = len(sections.all_warnings(session, lights))
+        rows.append([html.escape(label), settings, html.escape(sections.lights_origin(session, lights)),
                      shares, error, str(warned)])
     return html.table(["session", "normals settings", "lights", "status", "error vs truth", "warnings"], rows)
 
@@ -92,7 +93,7 @@ def compare_sessions(sessions, out, *, max_deg=ERROR_TOP_DEG):
                for i, maps in enumerate(all_maps)]
     scores = [evaluate_session(s, max_deg=max_deg, write=False) if s.manifest["truth"] else {} for s in sessions]
     body = [(None, f"<p>{len(sessions)} sessions on the same scales; written {html.escape(now_iso())}.</p>"),
-            ("Sessions", _summary_table(sessions, labels, scores, all_maps)),
+            ("Sessions", _summary_table(sessions, labels, scores)),
             ("Maps", _maps_table(labels, columns, bars))]
     errors = [(label, maps.errors) for label, maps in zip(labels, all_maps) if maps.errors is not None]
     if errors:

@@ -10,11 +10,11 @@ from ..paths import LIGHTS
 from ..session import STAGES
 from .charts import error_by_observations, error_histogram
 from .details import flatten, format_value, record_rows, stage_warnings
-from .html import details, escape, figures, table, warnings_box
+from .html import details, escape, table
 from .lights import hemisphere_svg, light_rows
 
-__all__ = ["lights_in_use", "lights_origin", "header", "stages_table", "scores_section", "charts_section", "lights_section",
-           "details_section", "mesh_section", "all_warnings"]
+__all__ = ["lights_in_use", "lights_origin", "header", "stages_table", "scores_section", "charts_section",
+           "lights_section", "details_section", "mesh_section", "all_warnings"]
 
 
 def lights_in_use(session):

@@ -5,9 +5,7 @@ table, the error charts."""
 import re
 
 import numpy as np
-import pytest
 
-from pipeline import runner
 from pipeline.imageio import read_image, write_image
 from pipeline.lightsio import read_lights_yaml, write_lights_yaml
 from pipeline.paths import LIGHTS, OBSERVATIONS, STATUS_MAP
@@ -15,16 +13,6 @@ from pipeline.photometric import STATUS, STATUS_NAMES
 from pipeline.photometric.methods import STATUS_PALETTE
 from pipeline.report import report_session
 from pipeline.report.images import Scale, colour_bar, colour_map
-from pipeline.session import Session
-from tests.pipeline.tiny_session import lambert_stage, make_session
-
-
-@pytest.fixture
-def processed(tmp_path, monkeypatch):
-    monkeypatch.setitem(runner.RUNNERS, "normals", lambert_stage)
-    session = make_session(tmp_path)
-    runner.run_session(session.root, stop="integrate")
-    return Session.open(session.root)
 
 
 def page(session, **options):

@@ -5,13 +5,12 @@ from urllib.parse import unquote, urlparse
 
 import pytest
 
-from pipeline import runner
 from pipeline.cli import main
 from pipeline.errors import StageError
 from pipeline.imageio import read_image
 from pipeline.report import report_session
 from pipeline.session import Session
-from tests.pipeline.tiny_session import lambert_stage, make_session
+from tests.pipeline.tiny_session import lambert_stage
 
 
 class Links(HTMLParser):
@@ -30,14 +29,6 @@ def links_of(index):
     parser = Links()
     parser.feed(index.read_text(encoding="utf-8"))
     return parser.links
-
-
-@pytest.fixture
-def processed(tmp_path, monkeypatch):
-    monkeypatch.setitem(runner.RUNNERS, "normals", lambert_stage)
-    session = make_session(tmp_path)
-    runner.run_session(session.root, stop="integrate")
-    return Session.open(session.root)
 
 
 def test_report_links_are_relative_and_decode(processed):
