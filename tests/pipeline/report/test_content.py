@@ -6,6 +6,7 @@ import re
 
 import numpy as np
 
+from pipeline import runner
 from pipeline.imageio import read_image, write_image
 from pipeline.lightsio import read_lights_yaml, write_lights_yaml
 from pipeline.paths import LIGHTS, OBSERVATIONS, STATUS_MAP
@@ -13,6 +14,8 @@ from pipeline.photometric import STATUS, STATUS_NAMES
 from pipeline.photometric.methods import STATUS_PALETTE
 from pipeline.report import report_session
 from pipeline.report.images import Scale, colour_bar, colour_map
+from pipeline.session import Session
+from tests.pipeline.tiny_session import make_session
 
 
 def page(session, **options):
@@ -103,3 +106,21 @@ def test_error_histogram_and_error_against_observations(processed):
     write_image(processed.path(OBSERVATIONS), counts, bits=16)
     text = page(processed)
     assert "angular error against the observations used" in text
+
+
+def test_a_session_with_frames_only_still_reports(tmp_path, monkeypatch):
+    session = make_session(tmp_path, "early")
+    runner.run_session(session.root, stop="decode")
+    text = page(Session.open(session.root))
+    assert "Frames: object (8)" in text and 'class="psrig-mesh"' not in text and "not run" in text
+
+
+def test_the_3d_view_of_a_perspective_mesh(processed):
+    from pipeline.integrate import integrate_session
+
+    K = np.array([[60.0, 0, 20], [0, 60.0, 20], [0, 0, 1]])
+    integrate_session(processed, K=K, force=True)
+    text = page(processed)
+    assert 'data-mesh="depth"' in text and "up to scale" in text
+    script = processed.path("report/mesh_depth.js").read_text()
+    assert '"faces": ' in script and '"vertices": ' in script
