@@ -43,6 +43,8 @@ def shrink(image, max_side):
         return image
     h, w = (image.shape[0] // step) * step, (image.shape[1] // step) * step
     blocks = image[:h, :w].reshape(h // step, step, w // step, step, image.shape[2])
+    if not np.isnan(blocks).any():  # frames: the plain mean, three times faster than nanmean
+        return blocks.mean(axis=(1, 3))
     # nanmean: depth and masked maps carry NaN outside the object; an all-NaN block stays NaN
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
