@@ -32,6 +32,7 @@ code { font-size: 0.85em; }
 .warnings li { margin: 0.2em 0; }
 .ok { color: #2a7a2a; }
 .flag { color: #c0392b; }
+.scores { display: flex; flex-wrap: wrap; gap: 0 2em; align-items: flex-start; }
 .charts svg { margin: 0.3em 1em 0.3em 0; vertical-align: top; }
 canvas.psrig-mesh { border: 1px solid #ccc; background: #f4f4f4; cursor: grab; touch-action: none; }
 details summary { cursor: pointer; font-weight: bold; margin: 0.4em 0; }

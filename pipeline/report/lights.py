@@ -41,9 +41,13 @@ def hemisphere_svg(lights, truth=None):
     low, high = float(strength.min()), float(strength.max())
     colours = _viridis((strength - low) / (high - low) if high > low else np.full(len(dirs), 0.5))
     c = _SIZE / 2
-    parts = [f'<circle cx="{c}" cy="{c}" r="{_R * np.sin(np.radians(a)):.1f}" fill="none" stroke="#bbb"/>'
-             f'<text x="{c + 3}" y="{c - _R * np.sin(np.radians(a)) - 2:.1f}" fill="#888">{a} deg</text>'
-             for a in (30, 60, 90)]
+    parts = []
+    for angle in (30, 60, 90):
+        radius = _R * np.sin(np.radians(angle))
+        # ring labels on the lower-right diagonal, clear of the axes' labels
+        parts.append(f'<circle cx="{c}" cy="{c}" r="{radius:.1f}" fill="none" stroke="#bbb"/>'
+                     f'<text x="{c + 0.72 * radius:.1f}" y="{c + 0.72 * radius + 3:.1f}" fill="#888" '
+                     f'font-size="8">{angle}&#176;</text>')
     parts.append(f'<line x1="{c - _R}" y1="{c}" x2="{c + _R}" y2="{c}" stroke="#ddd"/>'
                  f'<line x1="{c}" y1="{c - _R}" x2="{c}" y2="{c + _R}" stroke="#ddd"/>'
                  f'<text x="{c + _R + 4}" y="{c + 4}">x</text><text x="{c - 3}" y="{c - _R - 6}">y</text>')

@@ -73,14 +73,16 @@ def stages_table(session):
     return table(["stage", "status", "time", "finished", "settings", "warnings"], rows)
 
 
-def _value(v):
+def _value(v, key=""):
+    if isinstance(v, float) and (key.startswith("under_") or key == "coverage"):
+        return f"{v:.1%}"  # shares of the pixels
     return f"{v:.4g}" if isinstance(v, float) else escape(format_value(v))
 
 
 def scores_section(scores):
     parts = []
     if "normals" in scores:
-        rows = [[escape(k), _value(v)] for k, v in scores["normals"].items() if k != "error_map"]
+        rows = [[escape(k), _value(v, k)] for k, v in scores["normals"].items() if k != "error_map"]
         parts.append("<h3>Normals against ground truth (degrees)</h3>" + table(["metric", "value"], rows))
     if "lights" in scores:
         lt = scores["lights"]
@@ -92,7 +94,7 @@ def scores_section(scores):
     if "depth" in scores:
         rows = [[escape(k), _value(v)] for k, v in scores["depth"].items()]
         parts.append("<h3>Depth against ground truth</h3>" + table(["metric", "value"], rows))
-    return "\n".join(parts)
+    return '<div class="scores">' + "\n".join(f"<div>{p}</div>" for p in parts) + "</div>"
 
 
 def charts_section(maps, scale):

@@ -26,7 +26,7 @@ from ..paths import (ALBEDO, DEPTH, LIGHTS, NORMALS, NORMALS_MASK, OBSERVATIONS,
 from ..session import STAGES, now_iso
 from . import html, sections
 from .images import robust_max, shrink, tone_map
-from .maps import bar_figures, choose_scales, map_figures, read_maps
+from .maps import Figure, bar_figures, choose_scales, map_figures, read_maps
 from .mesh_view import mesh_payload, write_mesh_view
 
 __all__ = ["report_session", "INDEX", "THUMB_SIDE", "LAYOUT"]
@@ -59,8 +59,6 @@ def _writer(session, written):
 
 def _thumbnails(session, write):
     """One thumbnail per decoded frame: [(kind, [Figure])], one white per frame kind."""
-    from .maps import Figure
-
     groups = {}
     for frame in session.frames():
         path = session.linear_path(frame)
@@ -79,8 +77,6 @@ def _thumbnails(session, write):
 
 
 def _calibration_images(session, write):
-    from .maps import Figure
-
     figures = []
     for path in sorted(session.path("calibration").glob("*.png")):
         image = read_image(path)
