@@ -282,20 +282,22 @@ def _albedo_channels(session, result):
     Frames are read one at a time: memory stays (H, W, C) whatever the light count.
     """
     lights, frames = _read_stage_lights(session, _object_frames(session))
-    sums = grey = None
+    sums = None
     for frame in frames:
         linear = read_image(session.linear_path(frame))
         if linear.shape[2] < 2 or linear.shape[:2] != result.albedo.shape:
             return result.albedo
         gain = lights.intensities[frame["light"]]
         gain = gain if gain.size == linear.shape[2] else np.full(linear.shape[2], gain.mean())
-        scaled = np.where(read_mask(session.saturation_path(frame))[:, :, None], 0.0, linear / gain)
-        sums = scaled if sums is None else sums + scaled
-        grey = scaled.mean(axis=2) if grey is None else grey + scaled.mean(axis=2)
+        # in place and in float32: this pass re-reads every frame, so it must stay cheap
+        linear *= (1.0 / gain).astype(np.float32)
+        linear[read_mask(session.saturation_path(frame))] = 0.0
+        sums = linear if sums is None else np.add(sums, linear, out=sums)
     if sums is None:
         return result.albedo
+    grey = sums.mean(axis=2, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = np.where(grey[:, :, None] > 0, sums / grey[:, :, None], 1.0)
+        ratio = np.where(grey > 0, sums / grey, 1.0)
     return result.albedo[:, :, None] * ratio
 
 
