@@ -34,6 +34,7 @@ class Chart:
         self.width, self.height = width, height
         self.left, self.right, self.top, self.bottom = 52, 12, 14, 40
         self.parts = []
+        self.entries = []
         self.x_label, self.y_label = x_label, y_label
 
     def px(self, x):
@@ -64,13 +65,8 @@ class Chart:
                            for x, y, g in zip(xs, ys, good) if g]
 
     def legend(self, entries):
-        """entries: [(label, colour, dashed)] drawn at the top right."""
-        for i, (label, colour, dash) in enumerate(entries):
-            y = self.top + 10 + 14 * i
-            x = self.width - self.right - 150
-            style = ' stroke-dasharray="4,3"' if dash else ""
-            self.parts.append(f'<line x1="{x}" y1="{y - 4}" x2="{x + 18}" y2="{y - 4}" stroke="{colour}" '
-                              f'stroke-width="2"{style}/><text x="{x + 22}" y="{y}">{html.escape(label)}</text>')
+        """entries: [(label, colour, dashed)], listed under the plot (long labels fit there)."""
+        self.entries = list(entries)
 
     def svg(self, title):
         axes = [f'<line x1="{self.left}" y1="{self.py(self.y0):.1f}" x2="{self.width - self.right}" '
@@ -87,8 +83,14 @@ class Chart:
                     f'text-anchor="middle">{html.escape(self.x_label)}</text>')
         axes.append(f'<text transform="translate(12,{(self.top + self.height - self.bottom) / 2:.0f}) rotate(-90)" '
                     f'text-anchor="middle">{html.escape(self.y_label)}</text>')
+        for i, (label, colour, dash) in enumerate(self.entries):
+            y = self.height + 12 + 14 * i
+            style = ' stroke-dasharray="4,3"' if dash else ""
+            axes.append(f'<line x1="{self.left}" y1="{y - 4}" x2="{self.left + 18}" y2="{y - 4}" stroke="{colour}" '
+                        f'stroke-width="2"{style}/><text x="{self.left + 24}" y="{y}">{html.escape(label)}</text>')
+        height = self.height + (14 * len(self.entries) + 14 if self.entries else 0)
         return (f'<svg class="chart" xmlns="http://www.w3.org/2000/svg" width="{self.width}" '
-                f'height="{self.height}" viewBox="0 0 {self.width} {self.height}" role="img" '
+                f'height="{height}" viewBox="0 0 {self.width} {height}" role="img" '
                 f'font-size="10" font-family="sans-serif"><title>{html.escape(title)}</title>'
                 + "".join(axes) + "".join(self.parts) + "</svg>")
 

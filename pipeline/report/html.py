@@ -59,7 +59,7 @@ def colour_bar(scale, bars, base="report/"):
         return ""
     return (f'<div class="bar"><span>&ge; {html.escape(scale.label(scale.top))}</span>'
             f'<img src="{href(bars[scale.name], base)}" alt="colour bar {html.escape(scale.name)}">'
-            f"<span>{html.escape(scale.label(scale.bottom))}</span></div>")
+            f"<span>{'&le; ' if scale.bottom else ''}{html.escape(scale.label(scale.bottom))}</span></div>")
 
 
 def figure(fig, bars, base="report/", css=""):
