@@ -26,9 +26,9 @@ from .imageio import read_image, read_mask, read_normal_png, write_image
 from .lightsio import read_lights
 from .paths import DEPTH, ERROR_MAP, EVAL, INTEGRATION, LIGHTS, NORMALS, NORMALS_MASK
 
-__all__ = ["angular_error", "error_stats", "light_errors", "intensity_errors", "position_errors", "depth_error", "error_map_rgb",
-           "normal_errors", "lights_imported", "evaluate_session", "EVAL_FILE", "ERROR_MAP", "PERCENTILES",
-           "THRESHOLDS", "ERROR_TOP_DEG"]
+__all__ = ["angular_error", "error_stats", "light_errors", "intensity_errors", "position_errors", "depth_error",
+           "error_map_rgb", "normal_errors", "lights_imported", "evaluate_session", "EVAL_FILE", "ERROR_MAP",
+           "PERCENTILES", "THRESHOLDS", "ERROR_TOP_DEG"]
 
 EVAL_FILE = EVAL
 PERCENTILES = (25, 75, 90, 95)

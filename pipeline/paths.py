@@ -5,9 +5,9 @@ on where it lies. Paths are POSIX-style and relative to the session folder
 (:meth:`pipeline.session.Session.path` resolves and checks them).
 """
 
-__all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP", "OBSERVATIONS",
-           "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION", "REPORT", "TRUTH_LIGHTS",
-           "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK"]
+__all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP",
+           "OBSERVATIONS", "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION",
+           "REPORT", "TRUTH_LIGHTS", "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK"]
 
 #: calibrate stage (or an importer) -> normals, report, eval: the lights in use
 LIGHTS = "calibration/lights.yaml"
