@@ -4,8 +4,11 @@ Scores whatever the session has and ground truth exists for (``session.truth(key
 
 - normals: angular error (degrees) over the ground-truth mask AND the estimated mask; mean,
   median, percentiles, fractions under 5 / 10 / 20 degrees, and a colour-mapped error map
-  ``normals/error.png`` (0 .. ``max_deg`` degrees, black outside the evaluated mask);
-- lights: per-light angle between ``calibration/lights.yaml`` and the true directions;
+  ``normals/error.png`` (0 .. ``max_deg`` degrees, 30 unless told, so that maps of two
+  sessions compare; black outside the evaluated mask);
+- lights: per-light angle between ``calibration/lights.yaml`` and the true directions, unless
+  the lights in use were imported with the data and never calibrated in the session (they are
+  then the ground truth's own, and comparing them with it says nothing);
 - depth: mean absolute error of ``depth/depth.exr``. Orthographic depth is known up to an offset
   only, so one offset (the median of truth - estimate) is fitted; perspective depth is known up
   to scale, so one scale (the median of truth / estimate) is fitted, as the DiLiGenT protocol
@@ -23,12 +26,15 @@ from .imageio import read_image, read_mask, read_normal_png, write_image
 from .lightsio import read_lights
 from .paths import DEPTH, ERROR_MAP, EVAL, INTEGRATION, LIGHTS, NORMALS, NORMALS_MASK
 
-__all__ = ["angular_error", "error_stats", "light_errors", "intensity_errors", "position_errors", "depth_error", "error_map_rgb",
-           "evaluate_session", "EVAL_FILE", "ERROR_MAP", "PERCENTILES", "THRESHOLDS"]
+__all__ = ["angular_error", "error_stats", "light_errors", "intensity_errors", "position_errors", "depth_error",
+           "error_map_rgb", "normal_errors", "lights_imported", "evaluate_session", "EVAL_FILE", "ERROR_MAP",
+           "PERCENTILES", "THRESHOLDS", "ERROR_TOP_DEG"]
 
 EVAL_FILE = EVAL
 PERCENTILES = (25, 75, 90, 95)
 THRESHOLDS = (5, 10, 20)
+#: top of every angular-error colour scale unless told otherwise (degrees)
+ERROR_TOP_DEG = 30.0
 
 
 def angular_error(n1, n2, mask=None):
@@ -123,14 +129,16 @@ def depth_error(estimate, truth, projection="orthographic"):
             "pixels": int(valid.sum())}
 
 
-def error_map_rgb(errors, max_deg=None, cmap="viridis"):
-    """Colour-mapped error map: (H, W, 3) uint8, 0 .. ``max_deg`` degrees, black where NaN."""
+def error_map_rgb(errors, max_deg=ERROR_TOP_DEG, cmap="viridis"):
+    """Colour-mapped error map: (H, W, 3) uint8, 0 .. ``max_deg`` degrees (larger errors have
+    the top colour), black where NaN; returns it and ``max_deg``."""
     from matplotlib import colormaps
 
     errors = np.asarray(errors, np.float64)
     finite = np.isfinite(errors)
-    if max_deg is None:
-        max_deg = float(np.percentile(errors[finite], 99)) if finite.any() else 1.0
+    max_deg = ERROR_TOP_DEG if max_deg is None else float(max_deg)
+    if max_deg <= 0:
+        raise InputError(f"error scale: the top must be positive, got {max_deg}")
     scaled = np.clip(np.nan_to_num(errors) / max(max_deg, 1e-9), 0.0, 1.0)
     rgb = (colormaps[cmap](scaled)[..., :3] * 255 + 0.5).astype(np.uint8)
     rgb[~finite] = 0
@@ -145,10 +153,20 @@ def _read_normals(path):
     return read_normal_png(path)
 
 
-def _eval_normals(session, max_deg):
+def normal_errors(session):
+    """Per-pixel angular error of the session's normals against its ground truth.
+
+    Returns
+    -------
+    ndarray (H, W) float64 or None
+        Degrees over the estimated AND the true mask, NaN elsewhere; None when the session
+        has no normals or no true normals.
+    true_pixels : int
+        Pixels of the true mask (the coverage's denominator).
+    """
     est_path, mask_path = session.path(NORMALS), session.path(NORMALS_MASK)
-    if not est_path.is_file():
-        return None
+    if not est_path.is_file() or session.truth("normals") is None or not session.truth("normals").is_file():
+        return None, 0
     est, est_mask = _read_normals(est_path)
     if mask_path.is_file():
         est_mask &= read_mask(mask_path)
@@ -158,9 +176,15 @@ def _eval_normals(session, max_deg):
     if true.shape != est.shape:
         raise InputError(f"{session.truth('normals')}: ground truth is {true.shape[1]}x{true.shape[0]} "
                          f"but {est_path} is {est.shape[1]}x{est.shape[0]}")
-    errors = angular_error(est, true, est_mask & true_mask)
+    return angular_error(est, true, est_mask & true_mask), int(true_mask.sum())
+
+
+def _eval_normals(session, max_deg):
+    errors, true_pixels = normal_errors(session)
+    if errors is None:
+        return None
     stats = error_stats(errors)
-    stats["truth_pixels"] = int(true_mask.sum())
+    stats["truth_pixels"] = true_pixels
     stats["coverage"] = stats["pixels"] / max(stats["truth_pixels"], 1)
     rgb, stats["error_map_max_deg"] = error_map_rgb(errors, max_deg)
     write_image(session.path(ERROR_MAP), rgb, bits=8)
@@ -190,11 +214,20 @@ def position_errors(estimated, truth):
             "distance_mean_pct": float(distance.mean()), "distance_max_pct": float(distance.max())}
 
 
+def lights_imported(session):
+    """True when the lights in use came with imported data and no calibration of this session
+    replaced them: an importer's lights are then the ground truth's own."""
+    return session.manifest["lights"].get("source") == "imported" and session.stage("calibrate") is None
+
+
 def _eval_lights(session):
     est_path = session.path(LIGHTS)
     if not est_path.is_file():
         return None
     estimated, truth = read_lights(est_path), read_lights(session.truth("lights"))
+    if lights_imported(session):
+        return {"evaluated": False, "source": estimated.source,
+                "reason": "imported with the data: the lights in use are the ground truth's own"}
     if len(estimated) != len(truth):
         raise InputError(f"{est_path}: {len(estimated)} lights, the ground truth has {len(truth)}")
     # flagged lights carry no trustworthy direction; they are reported, not scored
@@ -228,14 +261,14 @@ def _eval_depth(session):
                        projection)
 
 
-def evaluate_session(session, *, max_deg=None, write=True):
+def evaluate_session(session, *, max_deg=ERROR_TOP_DEG, write=True):
     """Score a session against its ground truth.
 
     Parameters
     ----------
     session : Session
     max_deg : float, optional
-        Top of the error map's colour scale (default: the 99th percentile of the errors).
+        Top of the error map's colour scale (default :data:`ERROR_TOP_DEG`, 30 degrees).
     write : bool
         Write ``normals/eval.yaml`` (and the error map, which is always written with normals).
 

@@ -6,8 +6,8 @@ on where it lies. Paths are POSIX-style and relative to the session folder
 """
 
 __all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP",
-           "ERROR_MAP", "EVAL", "DEPTH", "MESH", "SHADED", "INTEGRATION", "REPORT", "TRUTH_LIGHTS",
-           "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK"]
+           "OBSERVATIONS", "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION",
+           "REPORT", "TRUTH_LIGHTS", "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK"]
 
 #: calibrate stage (or an importer) -> normals, report, eval: the lights in use
 LIGHTS = "calibration/lights.yaml"
@@ -22,6 +22,8 @@ NORMALS_MASK = "normals/mask.png"
 ALBEDO = "normals/albedo.exr"
 RESIDUAL = "normals/residual.exr"
 STATUS_MAP = "normals/status.png"
+#: per pixel, the number of observations the fit used (16-bit)
+OBSERVATIONS = "normals/observations.png"
 #: eval -> report
 ERROR_MAP = "normals/error.png"
 EVAL = "normals/eval.yaml"
@@ -29,6 +31,9 @@ EVAL = "normals/eval.yaml"
 #: integrate stage -> report, eval
 DEPTH = "depth/depth.exr"
 MESH = "depth/mesh.ply"
+MESH_OBJ = "depth/mesh.obj"
+#: the albedo as the OBJ's texture (mesh.mtl beside it names it)
+MESH_TEXTURE = "depth/albedo.png"
 SHADED = "depth/shaded.png"
 INTEGRATION = "depth/integration.yaml"
 

@@ -30,17 +30,21 @@ __all__ = ["run_session", "run_sessions", "run_stage", "check_stage_range", "RUN
 @dataclass
 class StageOutcome:
     """What one stage did: ``ran`` (bool), ``seconds`` wall time, ``note`` (why it was skipped,
-    or what a user should know of a run)."""
+    or what a user should know of a run) and the ``warnings`` its record holds (when it ran)."""
 
     name: str
     ran: bool
     seconds: float
     note: str = ""
+    warnings: list = field(default_factory=list)
 
     def describe(self):
+        """The stage's one line: what it did, its note and its warnings."""
         if self.ran:
-            return f"{self.name}: ran in {self.seconds:.1f} s" + (f"; {self.note}" if self.note else "")
-        return f"{self.name}: up to date" + (f" ({self.note})" if self.note else "")
+            line = f"{self.name}: ran in {self.seconds:.1f} s" + (f"; {self.note}" if self.note else "")
+        else:
+            line = f"{self.name}: up to date" + (f" ({self.note})" if self.note else "")
+        return line + "".join(f"; warning: {w}" for w in self.warnings)
 
 
 @dataclass
@@ -84,8 +88,11 @@ def _calibrate(session, options, force, jobs):
                          "sphere or import lights (psrig import images --lights FILE)")
     from calibration import calibrate_session
 
-    calibrate_session(session, force=force, **options)
-    return ""
+    # what the calibration says (flagged lights) becomes the stage's note; its own "is up to
+    # date" line would repeat the runner's
+    said = []
+    ran = calibrate_session(session, force=force, echo=said.append, **options)
+    return "; ".join(said) if ran is not None else ""
 
 
 def _normals(session, options, force, jobs):
@@ -99,8 +106,7 @@ def _normals(session, options, force, jobs):
 def _integrate(session, options, force, jobs):
     from .integrate import integrate_session
 
-    result = integrate_session(session, force=force, **options)
-    return "; ".join(result.warnings) if result is not None else None
+    integrate_session(session, force=force, **options)  # its warnings are in its record
 
 
 def _report(session, options, force, jobs):
@@ -178,7 +184,8 @@ def run_stage(session, name, options, force, jobs):
         raise StageError(f"stage {name}: {session.root}: status {record['status']}"
                          + (f" ({failed})" if failed else ""))
     ran = record is not None and record is not before
-    return StageOutcome(name, ran, seconds, note or "")
+    warnings = [str(w) for w in (record or {}).get("warnings") or []] if ran else []
+    return StageOutcome(name, ran, seconds, note or "", warnings)
 
 
 def check_stage_range(start, stop):

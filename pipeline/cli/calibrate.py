@@ -1,16 +1,15 @@
 """``psrig calibrate SESSION [--circle CX,CY,R[;CX,CY,R]] [--sphere-mask FILE] [--outline FILE | --no-outline]
 [--K FILE] [--force]``."""
 
-import numpy as np
-
 from ..errors import InputError
-from ..session import Session
 
 __all__ = ["register", "parse_circles"]
 
 
 def parse_circles(texts):
     """``--circle`` values (each 'CX,CY,R' or several joined by ';') -> list of [cx, cy, r]."""
+    import numpy as np
+
     circles = []
     for text in texts or []:
         for part in filter(None, (p.strip() for p in text.split(";"))):
@@ -48,6 +47,8 @@ _SOURCES = {"fit": "found on the light frames", "outline": "found on the outline
 
 
 def _read_K(path):
+    import numpy as np
+
     try:
         return np.loadtxt(path).reshape(3, 3)
     except (OSError, ValueError) as exc:
@@ -56,6 +57,8 @@ def _read_K(path):
 
 def run(args):
     from calibration import calibrate_session
+
+    from ..session import Session
 
     circles = parse_circles(args.circle)
     circle = None if not circles else (circles[0] if len(circles) == 1 else circles)

@@ -3,9 +3,6 @@
 import argparse
 import sys
 
-from ..decode import decode_session
-from ..gamma import parse_gamma
-from ..session import Session
 
 __all__ = ["register"]
 
@@ -32,6 +29,8 @@ def register(subparsers):
 
 
 def _gamma(text):
+    from ..gamma import parse_gamma
+
     try:
         return parse_gamma(text)
     except ValueError as exc:
@@ -40,6 +39,9 @@ def _gamma(text):
 
 def run(args):
     """Handler: decode, print a summary, exit 1 when a frame failed."""
+    from ..decode import decode_session
+    from ..session import Session
+
     session = Session.open(args.session)
     before = session.stage("decode")
     record = decode_session(session, method=args.method,

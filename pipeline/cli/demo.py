@@ -1,6 +1,5 @@
 """``psrig demo DIR [--force]``: simulated rig -> capture, process, evaluate, report."""
 
-from ..demo import run_demo
 from .eval import format_summary
 
 __all__ = ["register"]
@@ -20,6 +19,8 @@ def register(subparsers):
 
 
 def run(args):
+    from ..demo import run_demo
+
     result = run_demo(args.folder, force=args.force, echo=lambda line: print(line, flush=True))
     summary = format_summary(result["scores"])
     if summary:

@@ -2,9 +2,6 @@
 
 import json
 
-from ..evaluate import evaluate_session
-from ..session import Session
-
 __all__ = ["register", "format_summary"]
 
 
@@ -17,12 +14,16 @@ def register(subparsers):
                     "truth; writes normals/eval.yaml and normals/error.png.")
     parser.add_argument("session", metavar="SESSION", help="session folder")
     parser.add_argument("--json", action="store_true", help="print the numbers as JSON")
-    parser.add_argument("--max-deg", type=float, default=None,
-                        help="top of the error map's colour scale (default: 99th percentile)")
+    parser.add_argument("--max-deg", type=float, default=30.0,
+                        help="top of the error map's colour scale, degrees (default 30, the same "
+                             "for every session so that maps compare)")
     parser.set_defaults(func=run)
 
 
 def run(args):
+    from ..evaluate import evaluate_session
+    from ..session import Session
+
     session = Session.open(args.session)
     result = evaluate_session(session, max_deg=args.max_deg)
     if args.json:
@@ -43,11 +44,21 @@ def format_summary(result):
                      f"p90 {n['p90_deg']:.2f} deg, under 5/10/20 deg: {n['under_5_deg']:.1%} / "
                      f"{n['under_10_deg']:.1%} / {n['under_20_deg']:.1%} over {n['pixels']} pixels")
     if "lights" in result:
-        lt = result["lights"]
-        lines.append(f"lights: mean {lt['mean_deg']:.3f} deg, median {lt['median_deg']:.3f} deg, "
-                     f"max {lt['max_deg']:.3f} deg (light {lt['worst_light']})")
+        lines.append(_lights_line(result["lights"]))
     if "depth" in result:
         d = result["depth"]
         lines.append(f"depth: mean abs {d['mean_abs']:.3f}, median abs {d['median_abs']:.3f} "
                      f"(after a {d['fit']} fit)")
     return "\n".join(lines)
+
+
+def _lights_line(lights):
+    if lights.get("evaluated") is False:
+        return "lights: imported, not evaluated (they are the ground truth's own)"
+    if "mean_deg" not in lights:
+        return f"lights: not evaluated, every light flagged ({len(lights.get('flagged', []))})"
+    line = (f"lights: mean {lights['mean_deg']:.3f} deg, median {lights['median_deg']:.3f} deg, "
+            f"max {lights['max_deg']:.3f} deg (light {lights['worst_light']})")
+    if lights.get("flagged"):
+        line += f"; {len(lights['flagged'])} flagged light(s) left out"
+    return line

@@ -4,8 +4,6 @@
     psrig import images SESSION --object GLOB [--sphere GLOB [--outline GLOB]] [--mask FILE] [--lights FILE]
 """
 
-from ..importers import import_diligent, import_images
-
 __all__ = ["register"]
 
 
@@ -37,12 +35,16 @@ def register(subparsers):
 
 
 def _run_diligent(args):
+    from ..importers import import_diligent
+
     session = import_diligent(args.src, args.session)
     _print(session)
     return 0
 
 
 def _run_images(args):
+    from ..importers import import_images
+
     session = import_images(args.session, args.object, sphere_glob=args.sphere, mask=args.mask,
                             lights=args.lights, outline=args.outline)
     _print(session)

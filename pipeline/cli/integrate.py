@@ -1,17 +1,20 @@
-"""``psrig integrate``: normals to depth, mesh and a shaded render.
+"""``psrig integrate``: normals to depth, meshes and a shaded render.
 
-    psrig integrate SESSION [--K FILE] [--method NAME] [--force]
-    psrig integrate --normals PNG --mask PNG [--K FILE] [--method NAME] --out DIR
+    psrig integrate SESSION [--K FILE] [--method NAME] [mesh options] [--force]
+    psrig integrate --normals PNG --mask PNG [--K FILE] [--method NAME] [--albedo FILE] --out DIR
+
+The integration modules (scipy, pyamg) are imported when the command runs, not when the
+parser is built, so that ``psrig --help`` stays fast.
 """
 
 from pathlib import Path
 
 from ..errors import InputError
-from ..imageio import read_image, read_mask, read_normal_png
-from ..integrate import METHODS, integrate_files, integrate_session, read_intrinsics, write_depth_outputs
-from ..session import Session
 
 __all__ = ["register"]
+
+#: integration methods (pipeline.integrate.METHODS, checked there when the command runs)
+METHOD_NAMES = ("smooth", "bilateral")
 
 
 def register(subparsers):
@@ -26,21 +29,40 @@ def register(subparsers):
     parser.add_argument("--out", help="output folder for --normals")
     parser.add_argument("--K", dest="K", help="3x3 intrinsics text file (perspective); "
                         "omit for orthographic")
-    parser.add_argument("--method", default="smooth", choices=sorted(METHODS),
-                        help="smooth least squares, or discontinuity-preserving bilateral")
+    parser.add_argument("--method", default="smooth", metavar="NAME",
+                        help=f"{' or '.join(METHOD_NAMES)}: smooth least squares, or "
+                             "discontinuity-preserving bilateral")
     parser.add_argument("--k", type=float, default=None,
                         help="bilateral sharpness (larger keeps more discontinuities)")
     parser.add_argument("--drop-invalid", action="store_true",
                         help="with --normals: leave pixels with unusable normals (non-finite, facing "
                              "away) out of the mask instead of refusing them (a session's own "
                              "normals always are, with a note)")
+    parser.add_argument("--albedo", help="with --normals: albedo image (EXR or PNG) for the "
+                        "meshes' vertex colours and texture")
+    mesh = parser.add_argument_group("mesh units and splitting")
+    mesh.add_argument("--pixel-size", type=float, metavar="LENGTH",
+                      help="orthographic: the length one pixel covers on the object; the meshes are "
+                           "then in --unit instead of pixels")
+    mesh.add_argument("--distance", type=float, metavar="LENGTH",
+                      help="perspective (--K): the object's distance from the camera; the meshes are "
+                           "then in --unit instead of up to scale")
+    mesh.add_argument("--unit", metavar="NAME", help="unit of --pixel-size or --distance (default mm)")
+    mesh.add_argument("--max-slope", type=float, metavar="DEG", dest="max_slope_deg",
+                      help="no face across a depth step steeper than this (and than the normals "
+                           "say); default 80")
     parser.add_argument("--force", action="store_true", help="rerun even if up to date")
     parser.set_defaults(func=run)
 
 
 def run(args):
+    from ..integrate import integrate_session, read_intrinsics
+    from ..session import Session
+
     K = read_intrinsics(args.K) if args.K else None
     options = {} if args.k is None else {"k": args.k}
+    options.update({k: getattr(args, k) for k in ("pixel_size", "distance", "unit", "max_slope_deg")
+                    if getattr(args, k) is not None})
     if args.drop_invalid:
         options["invalid"] = "drop"
     if args.k is not None and args.method != "bilateral":
@@ -54,11 +76,15 @@ def run(args):
     if result is None:
         print(f"integrate: {session.root}: up to date (use --force to rerun)")
         return 0
-    _print(result, session.path("depth"))
+    _print(result, session.path("depth"), session.stage("integrate")["mesh"])
     return 0
 
 
 def _run_files(args, K, options):
+    from ..imageio import read_image, read_mask
+    from ..integrate import integrate_files, write_depth_outputs
+    from ..integrate.stage import MESH_KEYS
+
     if args.session:
         raise InputError("give either a SESSION or --normals, not both")
     if not args.out:
@@ -69,15 +95,23 @@ def _run_files(args, K, options):
         if mask.shape != normals.shape[:2]:
             raise InputError(f"{args.mask}: size {mask.shape} differs from {args.normals} "
                              f"{normals.shape[:2]}")
+    mesh = {k: options.pop(k) for k in MESH_KEYS if k in options}
+    albedo = read_image(args.albedo) if args.albedo else None
+    if albedo is not None and albedo.shape[:2] != normals.shape[:2]:
+        raise InputError(f"{args.albedo}: size {albedo.shape[:2]} differs from {args.normals} {normals.shape[:2]}")
     result = integrate_files(normals, mask, K, args.method, args.normals, **options)
     info = {"inputs": {"normals": str(Path(args.normals).resolve()),
-                       "mask": str(Path(args.mask).resolve()) if args.mask else None}}
-    write_depth_outputs(Path(args.out), result, normals, K, info)
-    _print(result, Path(args.out))
+                       "mask": str(Path(args.mask).resolve()) if args.mask else None,
+                       "albedo": str(Path(args.albedo).resolve()) if args.albedo else None}}
+    summary = write_depth_outputs(Path(args.out), result, normals, K, info, albedo, **mesh)
+    result.warnings = summary["warnings"]
+    _print(result, Path(args.out), summary["mesh"])
     return 0
 
 
 def _read_normal_map(path):
+    from ..imageio import read_image, read_normal_png
+
     if not path.is_file():
         raise InputError(f"{path}: normal map not found")
     if path.suffix.lower() == ".exr":
@@ -86,10 +120,12 @@ def _read_normal_map(path):
     return read_normal_png(path)
 
 
-def _print(result, folder):
+def _print(result, folder, mesh):
     projection = "perspective" if result.perspective else "orthographic"
     print(f"integrate: {result.method}, {projection}, {int((result.components > 0).sum())} pixels, "
           f"{result.n_components} component(s), {result.iterations} CG iterations in "
           f"{result.outer_iterations} round(s), {result.seconds:.2f} s -> {folder}")
+    print(f"integrate: meshes mesh.ply, mesh.obj: {mesh['vertices']} vertices, {mesh['faces']} faces, "
+          f"unit {mesh['unit']}" + (f", colour from the {mesh['colour']}" if mesh.get("colour") else ""))
     for warning in result.warnings:
         print(f"integrate: note: {warning}")

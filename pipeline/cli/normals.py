@@ -1,7 +1,6 @@
 """``psrig normals SESSION [--method NAME] [--t-low F] ...``"""
 
 from ..errors import InputError
-from ..session import Session
 
 
 def register(sub):
@@ -35,6 +34,7 @@ def register(sub):
 
 def run(args):
     from ..photometric import normals_session
+    from ..session import Session
 
     t_low = args.t_low
     if t_low is not None:

@@ -1,11 +1,20 @@
-"""``psrig run SESSION... [--jobs N] [--force] [--from STAGE] [stage options]``."""
+"""``psrig run SESSION... [--jobs N] [--force] [--from STAGE] [stage options] [-q | -v | --json]``.
 
+Output: one line per stage as it finishes (``S: normals: ran in 3.2 s``, with its note and
+warnings); ``-v`` adds each stage's settings, outputs and the normals' status shares; ``-q``
+prints only warnings and errors (stderr) and no progress; ``--json`` prints one JSON object per
+session (:func:`session_summary`) instead of the lines.
+"""
+
+import json
+import os
 import sys
 
-from ..runner import run_sessions, stage_options
-from ..session import STAGES
+__all__ = ["register", "session_summary", "STAGES"]
 
-__all__ = ["register"]
+#: pipeline.session.STAGES, spelled out so that building the parser imports no numpy (a test
+#: checks that the two agree)
+STAGES = ("decode", "calibrate", "normals", "integrate", "report")
 
 
 def register(subparsers):
@@ -35,25 +44,106 @@ def register(subparsers):
                              "or no address for a local cluster of --jobs workers; photometric "
                              "stereo is split into pixel tiles (put it after the session "
                              "folders, or write --scheduler local)")
+    output = parser.add_mutually_exclusive_group()
+    output.add_argument("-q", "--quiet", action="store_true",
+                        help="print only warnings and errors (stderr), no progress")
+    output.add_argument("-v", "--verbose", action="store_true",
+                        help="also print each stage's settings and outputs and the normals' status shares")
+    output.add_argument("--json", action="store_true",
+                        help="print one JSON object per session (stages run, times, status shares, "
+                             "warnings, output paths) instead of lines")
     parser.set_defaults(func=run)
 
 
 def run(args):
+    from ..runner import run_sessions, stage_options
+
     if args.jobs < 1:
         print("psrig run: error: --jobs must be >= 1", file=sys.stderr)
         return 2
+    if args.quiet:
+        os.environ["PSRIG_PROGRESS"] = "off"  # an environment variable: worker processes see it too
     options = stage_options(method=args.method, t_low=args.t_low,
                             integrate_method=args.integrate_method, binning=args.binning)
+    lines = not (args.quiet or args.json)
     run = dict(options=options, force=args.force, start=args.start, stop=args.stop, jobs=args.jobs,
-               echo=lambda line: print(line, flush=True))
+               echo=(lambda line: print(line, flush=True)) if lines else None)
     if args.scheduler is not None:  # a batch on Dask, photometric stereo in pixel tiles
         from ..cluster import run_batch, summary_table
 
         outcomes = run_batch(args.sessions, scheduler=args.scheduler, **run)
-        print(summary_table(outcomes), flush=True)
+        if lines:
+            print(summary_table(outcomes), flush=True)
     else:
         outcomes = run_sessions(args.sessions, **run)
+    summaries = [session_summary(o) for o in outcomes]
+    for summary in summaries:
+        if args.json:
+            print(json.dumps(summary), flush=True)
+        elif args.verbose:
+            for line in _details(summary):
+                print(line, flush=True)
+        elif args.quiet:
+            for warning in summary["warnings"]:
+                print(f"{summary['session']}: warning: {warning}", file=sys.stderr)
     failed = [o for o in outcomes if o.error]
-    for outcome in failed:
+    for outcome in failed if not args.json else ():
         print(f"psrig run: error: {outcome.error}", file=sys.stderr)
     return 1 if failed else 0
+
+
+def session_summary(outcome):
+    """One session's run as plain data (what ``--json`` prints).
+
+    Returns
+    -------
+    dict
+        ``session`` (path), ``ok``, ``error`` (or None), ``seconds`` (all stages), ``stages``
+        [{name, ran, seconds, note, status, warnings, settings, outputs}], ``status_shares``
+        {status name: share of the object's pixels} (when the normals stage has run),
+        ``warnings`` ["stage: text"] and ``outputs`` {what: absolute path} of the files a person
+        opens (report, normals, depth, meshes), those that exist.
+    """
+    from ..errors import PsrigError
+    from ..paths import DEPTH, MESH, MESH_OBJ, NORMALS, REPORT
+    from ..session import Session
+
+    try:
+        session = Session.open(outcome.root)
+    except PsrigError:
+        session = None
+    stages, warnings = [], []
+    for stage in outcome.stages:
+        record = (session.stage(stage.name) if session else None) or {}
+        stages.append({"name": stage.name, "ran": stage.ran, "seconds": round(stage.seconds, 3),
+                       "note": stage.note or None, "status": record.get("status"),
+                       "warnings": list(stage.warnings), "settings": record.get("params") or {},
+                       "outputs": list(record.get("outputs") or [])})
+        warnings += [f"{stage.name}: {w}" for w in stage.warnings]
+    normals = (session.stage("normals") if session else None) or {}
+    pixels = normals.get("pixels") or sum((normals.get("status_counts") or {}).values())
+    shares = {name: round(count / pixels, 6) for name, count in (normals.get("status_counts") or {}).items()} \
+        if pixels else {}
+    files = {"report": REPORT, "normals": NORMALS, "depth": DEPTH, "mesh_ply": MESH, "mesh_obj": MESH_OBJ}
+    outputs = {key: str(session.path(rel).resolve()) for key, rel in files.items()
+               if session and session.path(rel).is_file()}
+    return {"session": outcome.root, "ok": not outcome.error, "error": outcome.error or None,
+            "seconds": round(sum(s.seconds for s in outcome.stages), 3), "stages": stages,
+            "status_shares": shares, "warnings": warnings, "outputs": outputs}
+
+
+def _details(summary):
+    """``-v``'s lines after the stage lines: settings, outputs and status shares."""
+    root = summary["session"]
+    for stage in summary["stages"]:
+        settings = ", ".join(f"{k}={v}" for k, v in stage["settings"].items()) or "defaults"
+        yield f"{root}: {stage['name']}: settings: {settings}"
+        if stage["outputs"]:
+            shown = stage["outputs"][:6]
+            more = f" and {len(stage['outputs']) - len(shown)} more" if len(stage["outputs"]) > len(shown) else ""
+            yield f"{root}: {stage['name']}: outputs: {', '.join(shown)}{more}"
+    if summary["status_shares"]:
+        shares = ", ".join(f"{name} {share:.1%}" for name, share in summary["status_shares"].items())
+        yield f"{root}: normals: status: {shares}"
+    for key, path in summary["outputs"].items():
+        yield f"{root}: {key}: {path}"

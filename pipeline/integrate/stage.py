@@ -1,8 +1,10 @@
 """The ``integrate`` stage: normals/normals.exr + normals/mask.png -> depth/.
 
-Writes ``depth/depth.exr`` (float32, NaN outside the mask), ``depth/mesh.ply``,
+Writes ``depth/depth.exr`` (float32, NaN outside the mask), ``depth/mesh.ply`` (vertex colour
+from the albedo), ``depth/mesh.obj`` with ``mesh.mtl`` and the albedo texture ``albedo.png``,
 ``depth/shaded.png`` and ``depth/integration.yaml`` (method, projection, components and the
-statement that offsets / scales between components are unknown), then records the stage.
+statement that offsets / scales between components are unknown, the mesh's unit and the faces
+left out across depth jumps), then records the stage.
 :func:`write_depth_outputs` is shared with ``psrig integrate --out DIR``.
 """
 
@@ -15,15 +17,19 @@ import yaml
 from ..atomic import atomic_write_text
 from ..errors import InputError, StageError
 from ..imageio import read_image, read_mask, write_image
-from ..paths import DEPTH, INTEGRATION, MESH, NORMALS, NORMALS_MASK, SHADED
+from ..paths import ALBEDO, DEPTH, INTEGRATION, MESH, MESH_OBJ, MESH_TEXTURE, NORMALS, NORMALS_MASK, SHADED
+from .mesh import MAX_SLOPE_DEG, albedo_colours, build_mesh, write_obj, write_ply, write_shaded
 from .solve import check_intrinsics, integrate_normals_full
-from .mesh import write_depth_mesh, write_shaded
 
-__all__ = ["integrate_session", "write_depth_outputs", "read_intrinsics", "integrate_files",
-           "NORMALS", "MASK", "OUTPUTS"]
+__all__ = ["integrate_session", "write_depth_outputs", "read_intrinsics", "integrate_files", "mesh_units",
+           "NORMALS", "MASK", "OUTPUTS", "MESH_KEYS"]
 
 MASK = NORMALS_MASK
-OUTPUTS = (DEPTH, MESH, SHADED, INTEGRATION)
+OUTPUTS = (DEPTH, MESH, MESH_OBJ, "depth/mesh.mtl", MESH_TEXTURE, SHADED, INTEGRATION)
+#: options of the mesh, not of the integration method: the length of a pixel (orthographic) or
+#: the object's distance (perspective), the unit's name, and the slope of a depth jump
+MESH_KEYS = ("pixel_size", "distance", "unit", "max_slope_deg")
+_UNCOLOURED = tuple(rel for rel in OUTPUTS if rel not in (MESH_TEXTURE, "depth/mesh.mtl"))
 
 
 def read_intrinsics(path):
@@ -49,8 +55,46 @@ def integrate_files(normals, mask, K, method, where, **options):
         raise InputError(f"{where}: {exc}") from None
 
 
-def write_depth_outputs(folder, result, normals, K=None, info=None):
-    """Write depth.exr, mesh.ply, shaded.png and integration.yaml into ``folder``.
+def mesh_units(K=None, pixel_size=None, distance=None, unit=None):
+    """The mesh's scale and unit name from what is known of the scene.
+
+    Parameters
+    ----------
+    K : ndarray (3, 3), optional
+    pixel_size : float, optional
+        Orthographic only: the length one pixel covers on the object.
+    distance : float, optional
+        Perspective only: the object's distance from the camera along the axis (the integrated
+        depth has geometric mean 1 per component, so this is its scale).
+    unit : str, optional
+        The unit of ``pixel_size`` or ``distance`` (default 'mm').
+
+    Returns
+    -------
+    (scale or None, unit name)
+    """
+    if pixel_size is not None and distance is not None:
+        raise InputError("give --pixel-size (orthographic) or --distance (perspective, with --K), not both")
+    if pixel_size is not None:
+        if K is not None:
+            raise InputError("--pixel-size applies to orthographic integration; with --K give --distance")
+        value, name = pixel_size, "--pixel-size"
+    elif distance is not None:
+        if K is None:
+            raise InputError("--distance needs --K (perspective); orthographic meshes take --pixel-size")
+        value, name = distance, "--distance"
+    else:
+        if unit is not None:
+            raise InputError("--unit needs --pixel-size or --distance")
+        return None, ("px" if K is None else "up to scale")
+    if not np.isfinite(value) or value <= 0:
+        raise InputError(f"{name} {value}: must be a positive length")
+    return float(value), unit or "mm"
+
+
+def write_depth_outputs(folder, result, normals, K=None, info=None, albedo=None, **mesh_options):
+    """Write depth.exr, mesh.ply, mesh.obj (+ mesh.mtl, albedo.png), shaded.png and
+    integration.yaml into ``folder``.
 
     Parameters
     ----------
@@ -59,6 +103,10 @@ def write_depth_outputs(folder, result, normals, K=None, info=None):
         The integrated normals, used as the mesh's vertex normals.
     info : dict, optional
         Extra keys for integration.yaml (input files, ...).
+    albedo : ndarray (H, W) or (H, W, C), optional
+        Vertex colours and the OBJ's texture; none without it.
+    mesh_options
+        ``pixel_size``, ``distance``, ``unit`` (:func:`mesh_units`), ``max_slope_deg``.
 
     Returns
     -------
@@ -66,9 +114,24 @@ def write_depth_outputs(folder, result, normals, K=None, info=None):
         The integration.yaml content.
     """
     folder = Path(folder)
+    scale, unit = mesh_units(K, mesh_options.get("pixel_size"), mesh_options.get("distance"), mesh_options.get("unit"))
+    slope = float(mesh_options.get("max_slope_deg") or MAX_SLOPE_DEG)
     write_image(folder / "depth.exr", result.depth.astype(np.float32), bits=32)
-    vertices, faces = write_depth_mesh(folder / "mesh.ply", result.depth, K, normals)
+    mesh = build_mesh(result.depth, K, normals, albedo, scale=scale, unit=unit, max_slope_deg=slope)
+    comments = [f"unit {unit}", "vertex colour: albedo, sRGB" if albedo is not None else "no colour"]
+    write_ply(folder / "mesh.ply", mesh.vertices, mesh.normals, mesh.faces, mesh.colours, comments)
+    texture = None
+    if albedo is not None:
+        texture = Path(MESH_TEXTURE).name
+        rgb = albedo_colours(albedo)[0]
+        rgb[~np.isfinite(result.depth)] = 0
+        write_image(folder / texture, rgb, bits=8)
+    write_obj(folder / "mesh.obj", mesh, texture, comments)
     write_shaded(folder / "shaded.png", result.depth, K)
+    warnings = list(result.warnings)
+    if mesh.dropped:
+        warnings.append(f"mesh: {mesh.dropped} of {mesh.dropped + len(mesh.faces)} faces left out across depth "
+                        f"jumps (steeper than {slope:g} deg and than the normals say): the surface is split there")
     summary = {
         "method": result.method,
         "projection": "perspective" if result.perspective else "orthographic",
@@ -82,8 +145,10 @@ def write_depth_outputs(folder, result, normals, K=None, info=None):
         "iterations": result.iterations,
         "rounds": result.outer_iterations,
         "seconds": round(result.seconds, 3),
-        "mesh": {"vertices": vertices, "faces": faces},
-        "warnings": list(result.warnings),
+        "mesh": {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "unit": unit, "scale": scale,
+                 "max_slope_deg": slope, "faces_left_out_at_jumps": mesh.dropped,
+                 "colour": "albedo (sRGB)" if albedo is not None else None},
+        "warnings": warnings,
     }
     summary.update(info or {})
     atomic_write_text(folder / "integration.yaml", yaml.safe_dump(summary, sort_keys=False))
@@ -108,7 +173,8 @@ def integrate_session(session, *, K=None, method="smooth", force=False, invalid=
         an automatic mask). 'drop' (default) leaves them out and lists them in the result's
         and the stage record's ``warnings``; 'raise' refuses them.
     options
-        Passed to the method.
+        Passed to the method, but for :data:`MESH_KEYS`, which go to the mesh
+        (:func:`write_depth_outputs`).
 
     Returns
     -------
@@ -119,20 +185,28 @@ def integrate_session(session, *, K=None, method="smooth", force=False, invalid=
         if not session.path(rel).is_file():
             raise StageError(f"{session.path(rel)}: missing; run `psrig normals` first")
     K = None if K is None else check_intrinsics(K)
-    options = dict(options, invalid=invalid)
-    params = {"method": method, "K": None if K is None else K.tolist(), "options": options}
-    inputs = session.hash_inputs([NORMALS, MASK])
+    options = {k: v for k, v in dict(options, invalid=invalid).items() if v is not None}
+    mesh_options = {k: options.pop(k) for k in MESH_KEYS if k in options}
+    mesh_units(K, **{k: v for k, v in mesh_options.items() if k != "max_slope_deg"})  # refuse before solving
+    # the mesh's options are recorded with the method's, so that `psrig run` keeps them
+    params = {"method": method, "K": None if K is None else K.tolist(), "options": {**options, **mesh_options}}
+    rels = [NORMALS, MASK] + ([ALBEDO] if session.path(ALBEDO).is_file() else [])
+    inputs = session.hash_inputs(rels)
     if not force and session.stage_is_current("integrate", params, inputs):
         return None
     start = time.perf_counter()
     normals, mask = _read_inputs(session)
     result = integrate_files(normals, mask, K, method, str(session.path(NORMALS)), **options)
-    write_depth_outputs(session.path("depth"), result, normals, K,
-                        {"inputs": {NORMALS: inputs[NORMALS], MASK: inputs[MASK]}})
-    session.record_stage("integrate", params, inputs, list(OUTPUTS),
+    albedo = read_image(session.path(ALBEDO)) if ALBEDO in inputs else None
+    if albedo is not None and albedo.shape[:2] != mask.shape:
+        raise InputError(f"{session.path(ALBEDO)}: size {albedo.shape[:2]} differs from {NORMALS} {mask.shape}")
+    summary = write_depth_outputs(session.path("depth"), result, normals, K,
+                                  {"inputs": {rel: inputs[rel] for rel in rels}}, albedo, **mesh_options)
+    result.warnings = summary["warnings"]  # the mesh's too, for whoever prints them
+    session.record_stage("integrate", params, inputs, list(OUTPUTS if albedo is not None else _UNCOLOURED),
                          seconds=time.perf_counter() - start, components=result.n_components,
                          offsets_between_components="unknown" if result.n_components > 1 else "n/a",
-                         iterations=result.iterations, warnings=list(result.warnings))
+                         iterations=result.iterations, mesh=summary["mesh"], warnings=summary["warnings"])
     return result
 
 

@@ -22,12 +22,17 @@ from .model import unit
 from .lambert import lambert_weighted
 from .selection import select_observations
 
-__all__ = ["METHODS", "get_method", "STATUS", "STATUS_NAMES", "MIN_OBS", "base_status", "shading",
+__all__ = ["METHODS", "get_method", "STATUS", "STATUS_NAMES", "STATUS_PALETTE", "MIN_OBS", "base_status", "shading",
            "lambert_method", "lambert_low_method", "ModelAlternation", "register_model_methods"]
 
 STATUS = {"background": 0, "ok": 1, "shadowed": 2, "too_few": 3, "not_converged": 4, "lambert_fallback": 5,
           "shared_shape": 6}
 STATUS_NAMES = {code: name for name, code in STATUS.items()}
+#: The one colour (RGB) of each status, by name: normals/status_vis.png and the report's map and
+#: legend both use it; a status without a colour here is drawn in mid grey.
+STATUS_PALETTE = {"background": (0, 0, 0), "ok": (60, 170, 60), "shadowed": (40, 40, 160),
+                  "too_few": (200, 160, 0), "not_converged": (220, 40, 40), "lambert_fallback": (150, 80, 200),
+                  "shared_shape": (0, 160, 170)}
 MIN_OBS = 3
 
 #: Photometric-stereo methods by name (``psrig normals --method NAME``)

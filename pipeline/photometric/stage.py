@@ -18,11 +18,11 @@ import numpy as np
 from ..errors import StageError
 from ..imageio import read_image, read_mask, write_image, write_mask, write_normal_png
 from ..lightsio import read_lights_yaml
-from ..paths import LIGHTS
+from ..paths import LIGHTS, OBSERVATIONS
 from ..progress import progress as progress_bar
 from ..yamlio import plain
 from .estimate import estimate_normals
-from .methods import STATUS
+from .methods import STATUS, STATUS_NAMES, STATUS_PALETTE
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
 
@@ -35,9 +35,10 @@ LIGHT_MODELS = ("auto", "directional", "near")
 # EXR readers treat as colour channels.
 PAPER_NAMES = ("brdf.A_x2y2", "brdf.B_x2y", "brdf.C_x2", "brdf.D_xy2", "brdf.E_xy", "brdf.F_x",
                "brdf.G_y2", "brdf.H_y", "brdf.I_1")
-#: status_vis.png colour of each status code (RGB)
-STATUS_COLOURS = np.array([[0, 0, 0], [60, 170, 60], [40, 40, 160], [200, 160, 0], [220, 40, 40],
-                           [150, 80, 200], [0, 160, 170]], np.uint8)
+#: status_vis.png colour (RGB) of every uint8 status code, from the shared STATUS_PALETTE (the
+#: report draws its map and legend with the same table); codes without a colour are mid grey
+STATUS_COLOURS = np.full((256, 3), 128, np.uint8)
+STATUS_COLOURS[list(STATUS_NAMES)] = [STATUS_PALETTE.get(STATUS_NAMES[c], (128, 128, 128)) for c in STATUS_NAMES]
 #: what :mod:`pipeline.photometric.anchor` reports in the result's options, kept in the stage record
 ANCHOR_KEYS = ("cone_scale", "anchor", "mismatch_deg", "highlight_pixels", "probe_mismatch_deg",
                "final_mismatch_deg")
@@ -253,17 +254,51 @@ def record_normals(session, run, result, near_depth=None):
 
 def _write_outputs(session, result):
     mask = result.mask
-    names = {"normals.exr": result.normals, "albedo.exr": result.albedo, "residual.exr": result.residual}
-    for name, array in names.items():
+    albedo = _albedo_channels(session, result)
+    # normals.exr names its channels for what they hold (camera frame: x right, y up, z toward
+    # the camera) rather than R, G, B; readers take them in this order
+    write_image(session.path("normals/normals.exr"), result.normals.astype(np.float32),
+                channel_names=("normal.x", "normal.y", "normal.z"))
+    for name, array in {"albedo.exr": albedo, "residual.exr": result.residual}.items():
         write_image(session.path(f"normals/{name}"), array.astype(np.float32))
     channel_names = PAPER_NAMES if result.params.shape[2] == 9 else None
     write_image(session.path("normals/brdf.exr"), result.params, channel_names=channel_names)
     write_normal_png(session.path("normals/normals.png"), result.normals, mask & (result.status != 0))
     write_mask(session.path("normals/mask.png"), mask)
     write_image(session.path("normals/status.png"), result.status, bits=8)
-    write_image(session.path("normals/status_vis.png"), STATUS_COLOURS[np.minimum(result.status, len(STATUS_COLOURS) - 1)], bits=8)
+    write_image(session.path("normals/status_vis.png"), STATUS_COLOURS[result.status], bits=8)
+    write_image(session.path(OBSERVATIONS), np.where(mask, result.used, 0).astype(np.uint16), bits=16)
     return [f"normals/{n}" for n in ("normals.exr", "albedo.exr", "residual.exr", "brdf.exr", "normals.png",
-                                      "mask.png", "status.png", "status_vis.png")]
+                                      "mask.png", "status.png", "status_vis.png")] + [OBSERVATIONS]
+
+
+def _albedo_channels(session, result):
+    """The albedo (H, W) grey, or (H, W, C) when the object frames have C > 1 colour channels:
+    the grey albedo times each pixel's channel ratio, sum_k I_kc / sum_k mean_c I_kc over its
+    unsaturated observations (intensities divided out, as the solve saw them).
+
+    The ratio of sums weights each observation by its brightness, so shadowed observations,
+    all noise, barely count; its channel mean is 1, so the channels average to the grey albedo.
+    Frames are read one at a time: memory stays (H, W, C) whatever the light count.
+    """
+    lights, frames = _read_stage_lights(session, _object_frames(session))
+    sums = None
+    for frame in frames:
+        linear = read_image(session.linear_path(frame))
+        if linear.shape[2] < 2 or linear.shape[:2] != result.albedo.shape:
+            return result.albedo
+        gain = lights.intensities[frame["light"]]
+        gain = gain if gain.size == linear.shape[2] else np.full(linear.shape[2], gain.mean())
+        # in place and in float32: this pass re-reads every frame, so it must stay cheap
+        linear *= (1.0 / gain).astype(np.float32)
+        linear[read_mask(session.saturation_path(frame))] = 0.0
+        sums = linear if sums is None else np.add(sums, linear, out=sums)
+    if sums is None:
+        return result.albedo
+    grey = sums.mean(axis=2, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(grey > 0, sums / grey, 1.0)
+    return result.albedo[:, :, None] * ratio
 
 
 def model_record(shared_shape, shape_check, anchor):

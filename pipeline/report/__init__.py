@@ -1,9 +1,14 @@
-"""The session report: ``report/index.html``, one page that opens from disk.
+"""The session report: ``report/index.html``, one page that opens from disk, and a comparison
+page of several sessions on the same scales.
 
-:mod:`.stage` gathers the pictures and writes the page (the ``report`` stage), :mod:`.html`
-renders it, :mod:`.images` turns maps into pictures (tone maps, colour maps, status colours).
+:mod:`.stage` is the ``report`` stage, :mod:`.sections` its page's sections, :mod:`.maps` the
+result maps and their stated scales, :mod:`.images` pictures (tone maps, colour maps, colour
+bars, status colours), :mod:`.charts` the SVG charts, :mod:`.lights` the lights plot and table,
+:mod:`.details` the stage records, :mod:`.mesh_view` the 3-D view (with ``viewer.js``),
+:mod:`.html` the page's building blocks, :mod:`.compare` the comparison page.
 """
 
+from .compare import compare_sessions
 from .stage import INDEX, THUMB_SIDE, report_session
 
-__all__ = ["report_session", "INDEX", "THUMB_SIDE"]
+__all__ = ["report_session", "compare_sessions", "INDEX", "THUMB_SIDE"]

@@ -1,12 +1,38 @@
-"""Pictures for the HTML report: tone mapping, thumbnails and colour-mapped maps (8-bit RGB).
+"""Pictures for the HTML report: tone mapping, thumbnails, colour-mapped maps on stated scales,
+colour bars, and the status map in the one status palette (8-bit RGB).
 
 All functions take float arrays in the pipeline's conventions and return (h, w, 3) uint8 arrays
 ready for :func:`pipeline.imageio.write_image` with ``bits=8``.
 """
 
+import warnings
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["shrink", "srgb8", "tone_map", "normals_rgb", "colour_map", "status_rgb", "robust_max"]
+from ..gamma import encode_gamma
+
+__all__ = ["shrink", "srgb8", "tone_map", "normals_rgb", "colour_map", "colour_bar", "status_rgb",
+           "status_legend", "robust_max", "Scale"]
+
+
+@dataclass(frozen=True)
+class Scale:
+    """A stated colour scale: ``bottom`` .. ``top`` in ``unit`` through a matplotlib colormap.
+
+    Values beyond either end take the end's colour (the colour bar says so).
+    """
+
+    name: str
+    bottom: float
+    top: float
+    unit: str = ""
+    cmap: str = "viridis"
+
+    def label(self, value):
+        """A tick label: the value with its unit."""
+        text = f"{value:.3g}"
+        return f"{text} {self.unit}".strip()
 
 
 def shrink(image, max_side):
@@ -17,8 +43,11 @@ def shrink(image, max_side):
         return image
     h, w = (image.shape[0] // step) * step, (image.shape[1] // step) * step
     blocks = image[:h, :w].reshape(h // step, step, w // step, step, image.shape[2])
-    # nanmean: depth and masked maps carry NaN outside the object
-    with np.errstate(invalid="ignore"):
+    if not np.isnan(blocks).any():  # frames: the plain mean, three times faster than nanmean
+        return blocks.mean(axis=(1, 3))
+    # nanmean: depth and masked maps carry NaN outside the object; an all-NaN block stays NaN
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
         return np.nanmean(blocks, axis=(1, 3))
 
 
@@ -38,9 +67,7 @@ def _rgb(image):
 
 def srgb8(linear):
     """Linear 0..1 values -> sRGB-encoded uint8 (values outside 0..1 clipped, NaN black)."""
-    x = np.clip(np.nan_to_num(np.asarray(linear, np.float64)), 0.0, 1.0)
-    encoded = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return (encoded * 255 + 0.5).astype(np.uint8)
+    return (encode_gamma(np.nan_to_num(np.asarray(linear, np.float32)), "srgb") * 255 + 0.5).astype(np.uint8)
 
 
 def tone_map(linear, white):
@@ -58,24 +85,42 @@ def normals_rgb(normals, mask=None):
     return rgb
 
 
-def colour_map(values, top=None, cmap="magma"):
-    """Scalar map (H, W) -> uint8 RGB with a matplotlib colormap over 0..``top``; NaN black."""
+def colour_map(values, scale):
+    """Scalar map (H, W) -> uint8 RGB on ``scale`` (a :class:`Scale`); NaN black."""
     from matplotlib import colormaps
 
     values = np.asarray(values, np.float64)
-    top = robust_max(values, 99) if top is None else top
-    scaled = np.clip(np.nan_to_num(values) / max(top, 1e-12), 0, 1)
-    rgb = (colormaps[cmap](scaled)[..., :3] * 255 + 0.5).astype(np.uint8)
+    span = max(scale.top - scale.bottom, 1e-12)
+    scaled = np.clip((np.nan_to_num(values, nan=scale.bottom) - scale.bottom) / span, 0, 1)
+    rgb = (colormaps[scale.cmap](scaled)[..., :3] * 255 + 0.5).astype(np.uint8)
     rgb[~np.isfinite(values)] = 0
     return rgb
 
 
-def status_rgb(codes):
-    """Integer status codes (H, W) -> uint8 RGB (tab10 colours) and {code: (r, g, b)}."""
-    from matplotlib import colormaps
+def colour_bar(scale, height=256, width=14):
+    """The colour bar of ``scale``: (height, width, 3) uint8, the top value at the top."""
+    ramp = np.linspace(scale.top, scale.bottom, height)[:, None] * np.ones((1, width))
+    return colour_map(ramp, scale)
 
+
+def status_rgb(codes, colours):
+    """Integer status codes (H, W) -> uint8 RGB through ``colours`` (256, 3), the normals
+    stage's table (:data:`pipeline.photometric.stage.STATUS_COLOURS`)."""
+    return np.asarray(colours, np.uint8)[np.clip(np.asarray(codes).astype(np.int64), 0, 255)]
+
+
+def status_legend(codes, names, colours):
+    """Rows of a status legend: (code, name, (r, g, b), pixels, share of the object's pixels).
+
+    Every code present but background (0) is listed, known or not (an unknown one is named
+    'code N'); shares are of the non-background pixels, as the normals stage counts them.
+    """
     codes = np.asarray(codes).astype(np.int64)
-    palette = (np.asarray(colormaps["tab10"].colors) * 255 + 0.5).astype(np.uint8)
-    rgb = palette[codes % len(palette)]
-    legend = {int(c): tuple(int(v) for v in rgb[codes == c][0]) for c in np.unique(codes)}
-    return rgb, legend
+    inside = codes != 0
+    total = max(int(inside.sum()), 1)
+    rows = []
+    for code in np.unique(codes[inside]) if inside.any() else []:
+        pixels = int(np.sum(codes[inside] == code))
+        rows.append((int(code), names.get(int(code), f"code {int(code)}"),
+                     tuple(int(v) for v in colours[int(code)]), pixels, pixels / total))
+    return rows

@@ -1,14 +1,16 @@
-"""The report stage: ``report/index.html`` with the pictures a person checks.
+"""The report stage: ``report/index.html`` with what a person checks, at a glance.
 
-The page opens from disk (relative links only, no server, no network) and shows: a thumbnail of
-every decoded frame (tone-mapped from linear, one common white per frame kind so that light
-intensities compare), the calibration overlays, the normal map, albedo, residual and status
-maps, the angular-error map and the numbers of :func:`pipeline.evaluate.evaluate_session` when
-the session has ground truth, the shaded depth render, and each stage's settings and timings.
+The page opens from disk (relative links, no server, no network) and shows, in order: where
+the lights in use came from; every stage's warnings; the stages with their times and settings;
+the errors against ground truth when the session has it (numbers, a histogram, the error
+against the number of observations used); the result maps on stated scales, each false-colour
+map with its colour bar (angular error 0 .. 30 degrees unless told), the status map in the one
+status palette with names and pixel shares; the depth as a colour map, shaded, and in an
+interactive 3-D view; the lights as a hemisphere plot and a table; the calibration overlays;
+a thumbnail of every frame; and every stage record in full (settings, outcomes, warnings).
 
-Every picture is an 8-bit PNG copy inside ``report/`` (so the folder is self-contained); every
-write is atomic. The stage is current while the files it shows and the other stages' records
-are unchanged.
+Every picture is an 8-bit PNG inside ``report/`` and every write is atomic. The stage is
+current while the files it shows and the other stages' records are unchanged.
 """
 
 import time
@@ -17,17 +19,23 @@ import numpy as np
 
 from ..atomic import atomic_write_text
 from ..errors import StageError
-from ..imageio import read_image, read_image_native, read_mask, write_image
-from .html import render_page
-from .images import colour_map, normals_rgb, robust_max, shrink, status_rgb, tone_map
-from ..paths import ALBEDO, ERROR_MAP, LIGHTS, NORMALS, NORMALS_MASK, REPORT, RESIDUAL, SHADED, STATUS_MAP
-from ..session import STAGES
+from ..evaluate import ERROR_TOP_DEG
+from ..imageio import read_image, write_image
+from ..paths import (ALBEDO, DEPTH, LIGHTS, NORMALS, NORMALS_MASK, OBSERVATIONS, REPORT, RESIDUAL, SHADED,
+                     STATUS_MAP)
+from ..session import STAGES, now_iso
+from . import html, sections
+from .images import robust_max, shrink, tone_map
+from .maps import Figure, bar_figures, choose_scales, map_figures, read_maps
+from .mesh_view import mesh_payload, write_mesh_view
 
-__all__ = ["report_session", "INDEX", "THUMB_SIDE"]
+__all__ = ["report_session", "INDEX", "THUMB_SIDE", "LAYOUT"]
 
 INDEX = REPORT
 THUMB_SIDE = 160
-_MAPS = (NORMALS, NORMALS_MASK, ALBEDO, RESIDUAL, STATUS_MAP, SHADED)
+#: the page's layout version: a report of an older layout is rebuilt
+LAYOUT = 2
+_MAPS = (NORMALS, NORMALS_MASK, ALBEDO, RESIDUAL, STATUS_MAP, OBSERVATIONS, DEPTH, SHADED)
 
 
 def _sources(session):
@@ -41,14 +49,16 @@ def _sources(session):
     return rels
 
 
-def _write(session, rel, rgb, written):
-    write_image(session.path(rel), rgb, bits=8)
-    written.append(rel)
-    return rel
+def _writer(session, written):
+    def write(rel, rgb):
+        write_image(session.path(rel), rgb, bits=8)
+        written.append(rel)
+        return rel
+    return write
 
 
-def _thumbnails(session, written):
-    """One thumbnail per decoded frame: [(kind, [(rel, caption)])]."""
+def _thumbnails(session, write):
+    """One thumbnail per decoded frame: [(kind, [Figure])], one white per frame kind."""
     groups = {}
     for frame in session.frames():
         path = session.linear_path(frame)
@@ -59,69 +69,24 @@ def _thumbnails(session, written):
         white = robust_max(np.concatenate([t.ravel() for _, t in items]))
         figures = []
         for frame, small in items:
-            rel = _write(session, f"report/frames/{frame['id']}.png", tone_map(small, white), written)
+            rel = write(f"report/frames/{frame['id']}.png", tone_map(small, white))
             light = "" if frame.get("light") is None else f" (light {frame['light']})"
-            figures.append((rel, f"{frame['id']}{light}"))
+            figures.append(Figure(rel, f"{frame['id']}{light}"))
         out.append((kind, figures))
     return out
 
 
-def _calibration_images(session, written):
+def _calibration_images(session, write):
     figures = []
     for path in sorted(session.path("calibration").glob("*.png")):
         image = read_image(path)
         rgb = (np.clip(image[:, :, :3] if image.shape[2] >= 3 else np.repeat(image[:, :, :1], 3, 2),
                        0, 1) * 255 + 0.5).astype(np.uint8)
-        figures.append((_write(session, f"report/calibration/{path.name}", rgb, written), path.name))
+        figures.append(Figure(write(f"report/calibration/{path.name}", rgb), path.name))
     return figures
 
 
-def _normal_maps(session, written):
-    """(rel, caption) of the maps the normals, integrate and eval stages left."""
-    figures = []
-    path = session.path(NORMALS)
-    mask_path = session.path(NORMALS_MASK)
-    mask = read_mask(mask_path) if mask_path.is_file() else None
-    if path.is_file():
-        rgb = normals_rgb(read_image(path), mask)
-        figures.append((_write(session, "report/maps/normals.png", rgb, written), "normals (n + 1) / 2"))
-    truth = session.truth("normals")
-    if truth is not None and truth.is_file() and truth.suffix.lower() == ".exr":
-        rgb = normals_rgb(read_image(truth))
-        figures.append((_write(session, "report/maps/normals_truth.png", rgb, written), "true normals"))
-    path = session.path(ALBEDO)
-    if path.is_file():
-        albedo = read_image(path)
-        figures.append((_write(session, "report/maps/albedo.png", tone_map(albedo, robust_max(albedo)),
-                               written), "albedo"))
-    path = session.path(RESIDUAL)
-    if path.is_file():
-        residual = np.abs(read_image(path)).mean(axis=2)
-        top = robust_max(residual, 99)
-        figures.append((_write(session, "report/maps/residual.png", colour_map(residual, top), written),
-                        f"residual (0 .. {top:.3g})"))
-    return figures
-
-
-def _status_map(session, written):
-    path = session.path(STATUS_MAP)
-    if not path.is_file():
-        return [], {}
-    rgb, legend = status_rgb(read_image_native(path)[:, :, 0])
-    return [(_write(session, "report/maps/status.png", rgb, written), "status codes")], legend
-
-
-def _copy_png(session, src, dest, caption, written):
-    path = session.path(src)
-    if not path.is_file():
-        return []
-    image = read_image(path)
-    rgb = (np.clip(image[:, :, :3] if image.shape[2] >= 3 else np.repeat(image[:, :, :1], 3, 2),
-                   0, 1) * 255 + 0.5).astype(np.uint8)
-    return [(_write(session, dest, rgb, written), caption)]
-
-
-def report_session(session, *, force=False, evaluate=True):
+def report_session(session, *, force=False, evaluate=True, max_deg=ERROR_TOP_DEG):
     """Write ``report/index.html`` unless the report is up to date.
 
     Parameters
@@ -131,6 +96,9 @@ def report_session(session, *, force=False, evaluate=True):
         Rebuild even when current.
     evaluate : bool
         Score the session against its ground truth first (when it has any).
+    max_deg : float
+        Top of the angular-error scale, degrees (30 unless told; the same for every session,
+        so that reports compare).
 
     Returns
     -------
@@ -139,41 +107,75 @@ def report_session(session, *, force=False, evaluate=True):
     """
     if not session.frames():
         raise StageError(f"{session.root}: the session has no frames to report on")
-    sources = _sources(session)
-    inputs = session.hash_inputs(sources)
-    params = {"thumb": THUMB_SIDE, "evaluate": bool(evaluate),
+    if not max_deg or max_deg <= 0:
+        raise StageError(f"--max-deg {max_deg}: the top of the error scale must be a positive angle")
+    inputs = session.hash_inputs(_sources(session))
+    params = {"thumb": THUMB_SIDE, "evaluate": bool(evaluate), "max_deg": float(max_deg), "layout": LAYOUT,
               "stages": {n: (session.stage(n) or {}).get("finished") for n in STAGES if n != "report"}}
     if not force and session.stage_is_current("report", params, inputs):
         return None
     start = time.perf_counter()
-    scores = _evaluate(session) if evaluate else {}
+    scores = _evaluate(session, max_deg) if evaluate else {}
     written = []
-    sections = _sections(session, scores, written)
-    html = render_page(session, sections, scores)
-    atomic_write_text(session.path(INDEX), html)
+    text, scripts = _page(session, scores, max_deg, _writer(session, written))
+    written += [f"report/{name}" for name in scripts]
+    atomic_write_text(session.path(INDEX), text)
     written.append(INDEX)
     return session.record_stage("report", params, inputs, written, seconds=time.perf_counter() - start)
 
 
-def _evaluate(session):
+def _evaluate(session, max_deg):
     from ..evaluate import evaluate_session
 
     if not session.manifest["truth"]:
         return {}
-    return evaluate_session(session)
+    return evaluate_session(session, max_deg=max_deg)
 
 
-def _sections(session, scores, written):
-    """{title: figures} plus the status legend, in page order."""
-    status, legend = _status_map(session, written)
-    sections = {"frames": _thumbnails(session, written),
-                "calibration": _calibration_images(session, written),
-                "maps": _normal_maps(session, written) + status,
-                "legend": legend}
-    if "normals" in scores:
-        top = scores["normals"]["error_map_max_deg"]
-        sections["maps"] += _copy_png(session, ERROR_MAP, "report/maps/error.png",
-                                      f"angular error (0 .. {top:.1f} deg)", written)
-    sections["maps"] += _copy_png(session, SHADED, "report/maps/shaded.png",
-                                  "depth, shaded", written)
-    return sections
+def status_palette():
+    """Status names and the (256, 3) colour table of the normals stage (one palette)."""
+    from ..photometric import STATUS_NAMES
+    from ..photometric.stage import STATUS_COLOURS
+
+    return STATUS_NAMES, STATUS_COLOURS
+
+
+def _page(session, scores, max_deg, write):
+    """The page's HTML and the script files it loads (inside report/)."""
+    lights = sections.lights_in_use(session)
+    maps = read_maps(session)
+    scales = choose_scales([maps], max_deg)
+    bars = bar_figures(scales, "report/maps", write)
+    names, colours = status_palette()
+    figures = map_figures(maps, scales, "report/maps", write, names, colours)
+    depth_keys = ("depth", "shaded")
+    body = [(None, sections.header(session, lights, now_iso())),
+            ("Warnings", html.warnings_box(sections.all_warnings(session, lights))),
+            ("Stages", sections.stages_table(session))]
+    if scores:
+        body.append(("Errors against ground truth",
+                     sections.scores_section(scores) + sections.charts_section(maps, scales["error"])))
+    body.append(("Results", html.figures([f for f in figures if f.key not in depth_keys], bars)))
+    scripts = ()
+    depth_figs = [f for f in figures if f.key in depth_keys]
+    if depth_figs or maps.depth is not None:
+        view = ""
+        payload = None if maps.depth is None else mesh_payload(maps.depth, maps.normals, maps.albedo,
+                                                               _integration_K(session))
+        if payload is not None:
+            scripts = write_mesh_view(session.path("report"), "depth", payload)
+            view = sections.mesh_section("depth", payload, session.stage("integrate"))
+        body.append(("Depth", html.figures(depth_figs, bars) + view))
+    body.append(("Lights", sections.lights_section(session, lights, scores)))
+    overlays = _calibration_images(session, write)
+    if overlays:
+        body.append(("Calibration", html.figures(overlays)))
+    for kind, thumbs in _thumbnails(session, write):
+        body.append((f"Frames: {kind} ({len(thumbs)})", html.figures(thumbs, css="thumb")))
+    body.append(("Stage records", sections.details_section(session)))
+    return html.page(f"psrig report: {session.root.name}", body, scripts), scripts
+
+
+def _integration_K(session):
+    K = ((session.stage("integrate") or {}).get("params") or {}).get("K")
+    return None if K is None else np.asarray(K, float)

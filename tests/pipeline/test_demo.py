@@ -73,6 +73,9 @@ def test_demo_end_to_end(tmp_path, capsys):
     parser.feed(index.read_text())
     assert parser.found
     for link in parser.found:
-        assert read_image(index.parent / link).size > 0
+        if link.endswith(".js"):  # the 3-D view's viewer and mesh data
+            assert (index.parent / link).stat().st_size > 0
+        else:
+            assert read_image(index.parent / link).size > 0
     assert main(["run", str(session.root)]) == 0
     assert "ran in" not in capsys.readouterr().out

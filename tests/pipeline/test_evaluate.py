@@ -131,3 +131,22 @@ def test_light_scores_leave_flagged_lights_out_and_score_intensities_and_positio
     moved = positions + np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 0.0]])
     result = position_errors(moved, positions)
     assert abs(result["max_pct"] - 2.0) < 1e-9 and abs(result["distance_max_pct"] - 2.0) < 1e-9
+
+
+def test_imported_lights_are_not_scored_against_themselves(tmp_path, capsys):
+    session = make_scored_session(tmp_path / "s")
+    session.manifest["lights"]["source"] = "imported"  # as the importers record it
+    session.save()
+    assert main(["eval", str(session.root)]) == 0
+    out = capsys.readouterr().out
+    assert "lights: imported, not evaluated" in out and "mean 0.000" not in out
+    result = evaluate_session(Session.open(session.root))
+    assert result["lights"]["evaluated"] is False and "mean_deg" not in result["lights"]
+
+
+def test_error_map_has_a_fixed_scale_of_30_degrees_unless_told(tmp_path):
+    session = make_scored_session(tmp_path / "s")  # errors of 3 and 12 degrees
+    result = evaluate_session(session)
+    assert result["normals"]["error_map_max_deg"] == 30.0
+    low = evaluate_session(session, max_deg=12.0)
+    assert low["normals"]["error_map_max_deg"] == 12.0

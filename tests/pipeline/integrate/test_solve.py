@@ -9,7 +9,7 @@ from pipeline.cli import main
 from pipeline.errors import InputError, StageError
 from pipeline.imageio import read_image, read_mask, read_normal_png, write_image, write_mask, write_normal_png
 from pipeline.integrate import METHODS, integrate_normals, integrate_normals_full, integrate_session, read_intrinsics
-from pipeline.runner import RUNNERS, StageOutcome
+from pipeline.runner import run_stage
 from pipeline.session import Session
 
 from tests import SHARED_DATA
@@ -374,14 +374,15 @@ def test_stage_leaves_out_pixels_photometric_stereo_could_not_solve(tmp_path):
     normals[15, 20] = 0.0
     normals[10, 18] = (0.1, 0.0, -0.99)
     write_image(session.path("normals/normals.exr"), normals)
-    note = RUNNERS["integrate"](session, {}, False, None)   # what `psrig run` calls
+    outcome = run_stage(session, "integrate", {}, False, None)   # what `psrig run` calls
     depth = read_image(session.path("depth/depth.exr"))[:, :, 0]
     assert np.isnan(depth[15, 20]) and np.isnan(depth[10, 18])
     assert np.isfinite(depth).sum() == mask.sum() - 2
     warnings = Session.open(session.root).stage("integrate")["warnings"]
     assert len(warnings) == 2 and "row 10, column 18" in warnings[1]
-    line = StageOutcome("integrate", True, 0.1, note).describe()
-    assert line.startswith("integrate: ran in 0.1 s; dropped from the mask: 1 masked pixel(s) have non-finite")
+    line = outcome.describe()
+    assert outcome.warnings == warnings and "\n" not in line
+    assert line.split("; ", 1)[1].startswith("warning: dropped from the mask: 1 masked pixel(s) have non-finite")
     assert "face away from the camera" in line
     # asked to refuse them, the stage names the file and the pixel
     with pytest.raises(InputError, match=r"normals\.exr: normals: 1 masked pixel\(s\) have non-finite"):

@@ -5,13 +5,12 @@ from urllib.parse import unquote, urlparse
 
 import pytest
 
-from pipeline import runner
 from pipeline.cli import main
 from pipeline.errors import StageError
 from pipeline.imageio import read_image
 from pipeline.report import report_session
 from pipeline.session import Session
-from tests.pipeline.tiny_session import lambert_stage, make_session
+from tests.pipeline.tiny_session import lambert_stage
 
 
 class Links(HTMLParser):
@@ -32,14 +31,6 @@ def links_of(index):
     return parser.links
 
 
-@pytest.fixture
-def processed(tmp_path, monkeypatch):
-    monkeypatch.setitem(runner.RUNNERS, "normals", lambert_stage)
-    session = make_session(tmp_path)
-    runner.run_session(session.root, stop="integrate")
-    return Session.open(session.root)
-
-
 def test_report_links_are_relative_and_decode(processed):
     record = report_session(processed)
     index = processed.path("report/index.html")
@@ -52,13 +43,17 @@ def test_report_links_are_relative_and_decode(processed):
         assert not parsed.scheme and not parsed.netloc and not link.startswith("/"), link
         target = (report_dir / unquote(parsed.path)).resolve()
         assert target.is_relative_to(report_dir) and target.is_file(), link
-        assert read_image(target).size > 0
+        if tag == "script":
+            assert target.suffix == ".js" and target.stat().st_size > 0
+        else:
+            assert read_image(target).size > 0
     for rel in record["outputs"]:
         assert processed.path(rel).is_file()
     text = index.read_text(encoding="utf-8")
     for word in ("decode", "normals", "integrate", "mean_deg", "frames/object_007.png",
-                 "maps/error.png", "maps/shaded.png"):
+                 "maps/error.png", "maps/shaded.png", "maps/depth.png", 'class="psrig-mesh"'):
         assert word in text
+    assert [src for tag, src in links if tag == "script"] == ["mesh_depth.js", "viewer.js"]
 
 
 def test_report_skips_when_current_and_reruns_on_change(processed, capsys):
