@@ -17,6 +17,7 @@ from .errors import SessionError, StageError
 from .evaluate import evaluate_session
 from .report import INDEX
 from .runner import run_session
+from .yamlio import load_yaml
 
 __all__ = ["run_demo", "prepare_folder", "DEMO_MARK"]
 
@@ -35,7 +36,7 @@ def prepare_folder(folder, force=False):
         raise SessionError(f"{folder}: exists, is not empty and is not a session; choose an "
                            "empty or new folder for the demo")
     try:
-        data = yaml.safe_load(manifest.read_text(encoding="utf-8")) or {}
+        data = load_yaml(manifest.read_text(encoding="utf-8")) or {}
     except yaml.YAMLError:
         data = {}
     if not (isinstance(data, dict) and isinstance(data.get("rig"), dict)

@@ -13,6 +13,7 @@ import yaml
 
 from .atomic import atomic_write_text
 from .errors import InputError
+from .yamlio import dump_yaml, load_yaml
 
 __all__ = ["LightSet", "read_lights", "read_lights_text", "read_lp", "write_lp",
            "read_lights_yaml", "write_lights_yaml", "check_directions"]
@@ -164,7 +165,7 @@ def read_lights_yaml(path):
     """Read ``lights.yaml`` into a :class:`LightSet`, naming the key at fault on error."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = load_yaml(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: not valid YAML: {exc}") from None
     if not isinstance(data, dict) or "directions" not in data:
@@ -205,4 +206,4 @@ def write_lights_yaml(path, lights):
     if lights.filenames:
         data["filenames"] = list(lights.filenames)
     data.update(lights.extra)
-    atomic_write_text(path, yaml.safe_dump(data, sort_keys=False))
+    atomic_write_text(path, dump_yaml(data))
