@@ -45,7 +45,10 @@ def prepare_folder(folder, force=False):
     if not force:
         raise SessionError(f"{folder}: already holds a demo session; use --force to replace it "
                            "(or `psrig run` to reprocess it)")
-    shutil.rmtree(folder)
+    from .session import Session
+
+    with Session.open(folder, writer="demo"):  # not under a command still writing it
+        shutil.rmtree(folder)
     return folder
 
 
@@ -69,7 +72,7 @@ def _capture(folder, echo):
         capture_session(Session.create(folder, rig={"name": "sim"}), rig)
     else:
         capture_session(folder, rig)
-    session = Session.open(folder)
+    session = Session.open(folder, writer="demo")  # held until the demo is done
     session.manifest["rig"][DEMO_MARK] = True
     session.save()
     echo(f"capture: {len(session.frames())} frames in {time.perf_counter() - start:.1f} s")

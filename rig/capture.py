@@ -161,7 +161,7 @@ def capture_session(target, rig_config, *, resume=False, sim=None, progress=True
     session, root = _existing_session(target, rig_config, resume)
     with _open_devices(rig_config, sim) as devices, _sigterm_as_interrupt():
         devices.exposure = _set_exposure(rig_config, devices, echo)
-        session = session or Session.create(root)
+        session = (session or Session.create(root)).acquire("capture")
         _record_rig(session, rig_config, devices, echo, devices.exposure)
         if devices.sim is not None and not _truth_complete(session):
             devices.sim.write_truth(session)

@@ -11,6 +11,7 @@ import sys
 
 from .. import __version__
 from ..errors import PsrigError
+from .writing import WRITERS, add_wait_option
 
 __all__ = ["main", "COMMANDS"]
 
@@ -32,6 +33,9 @@ def build_parser():
                 raise
             continue
         module.register(sub)
+    for name in WRITERS:
+        if name in sub.choices:
+            add_wait_option(sub.choices[name])
     return parser
 
 

@@ -4,7 +4,7 @@
 import numpy as np
 
 from ..errors import InputError
-from ..session import Session
+from .writing import open_session
 
 __all__ = ["register", "parse_circles"]
 
@@ -63,7 +63,7 @@ def run(args):
         raise InputError("--outline: the sphere outlines come from --outline, --circle or --sphere-mask; "
                          "give only one of them")
     K = _read_K(args.K) if args.K else None
-    session = Session.open(args.session)
+    session = open_session(args.session, args)
     result = calibrate_session(session, circle=circle, sphere_mask=args.sphere_mask, K=K,
                                outline=False if args.no_outline else args.outline, force=args.force)
     if result is None:

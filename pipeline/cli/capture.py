@@ -12,6 +12,10 @@ for real rigs.
 
 import os
 import sys
+from pathlib import Path
+
+from ..session import MANIFEST
+from .writing import open_session
 
 __all__ = ["register", "run", "FAULTS_ENV"]
 
@@ -51,8 +55,10 @@ def run(args):
         from rig.sim.rig import SimulatedRig
 
         sim = SimulatedRig(rig, faults=os.environ[FAULTS_ENV])
+    # an existing session is locked before any device is touched (a new one, once it is made)
+    target = open_session(args.session, args) if (Path(args.session) / MANIFEST).is_file() else args.session
     try:
-        capture_session(args.session, rig, resume=args.resume, sim=sim, sphere=args.sphere,
+        capture_session(target, rig, resume=args.resume, sim=sim, sphere=args.sphere,
                         on_prompt=_prompt_yes if args.yes else None)
     except KeyboardInterrupt as exc:
         reason = str(exc) or "interrupted"

@@ -5,7 +5,7 @@ import sys
 
 from ..decode import decode_session
 from ..gamma import parse_gamma
-from ..session import Session
+from .writing import open_session
 
 __all__ = ["register"]
 
@@ -40,7 +40,7 @@ def _gamma(text):
 
 def run(args):
     """Handler: decode, print a summary, exit 1 when a frame failed."""
-    session = Session.open(args.session)
+    session = open_session(args.session, args)
     before = session.stage("decode")
     record = decode_session(session, method=args.method,
                             channels="grey" if args.grey else "rgb", binning=args.binning,

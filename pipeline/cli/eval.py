@@ -3,7 +3,7 @@
 import json
 
 from ..evaluate import evaluate_session
-from ..session import Session
+from .writing import open_session
 
 __all__ = ["register", "format_summary"]
 
@@ -23,7 +23,7 @@ def register(subparsers):
 
 
 def run(args):
-    session = Session.open(args.session)
+    session = open_session(args.session, args)
     result = evaluate_session(session, max_deg=args.max_deg)
     if args.json:
         print(json.dumps(result, indent=2))

@@ -9,7 +9,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..imageio import read_image, read_mask, read_normal_png
 from ..integrate import METHODS, integrate_files, integrate_session, read_intrinsics, write_depth_outputs
-from ..session import Session
+from .writing import open_session
 
 __all__ = ["register"]
 
@@ -49,7 +49,7 @@ def run(args):
         return _run_files(args, K, options)
     if not args.session:
         raise InputError("give a SESSION folder, or --normals PNG --mask PNG --out DIR")
-    session = Session.open(args.session)
+    session = open_session(args.session, args)
     result = integrate_session(session, K=K, method=args.method, force=args.force, **options)
     if result is None:
         print(f"integrate: {session.root}: up to date (use --force to rerun)")

@@ -1,7 +1,7 @@
 """``psrig normals SESSION [--method NAME] [--t-low F] ...``"""
 
 from ..errors import InputError
-from ..session import Session
+from .writing import open_session
 
 
 def register(sub):
@@ -41,7 +41,7 @@ def run(args):
         t_low = t_low / 100.0 if t_low > 1 else t_low
         if not 0 < t_low <= 1:
             raise InputError(f"--t-low must be a fraction in (0, 1] or a percentage, got {args.t_low}")
-    session = Session.open(args.session)
+    session = open_session(args.session, args)
     record = normals_session(session, method=args.method, force=args.force, t_low=t_low,
                              lights_model=args.lights_model, near_depth=args.near_depth == "on",
                              specular_anchor={"auto": None, "on": True, "off": False}[args.specular_anchor],

@@ -1,7 +1,7 @@
 """``psrig report SESSION [--force]``: report/index.html of a session."""
 
 from ..report import INDEX, report_session
-from ..session import Session
+from .writing import open_session
 
 __all__ = ["register"]
 
@@ -22,7 +22,7 @@ def register(subparsers):
 
 
 def run(args):
-    session = Session.open(args.session)
+    session = open_session(args.session, args)
     record = report_session(session, force=args.force, evaluate=not args.no_eval)
     state = "up to date" if record is None else f"written in {record['seconds']:.1f} s"
     print(f"report: {session.path(INDEX)} ({state})")

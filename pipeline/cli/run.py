@@ -45,7 +45,7 @@ def run(args):
     options = stage_options(method=args.method, t_low=args.t_low,
                             integrate_method=args.integrate_method, binning=args.binning)
     run = dict(options=options, force=args.force, start=args.start, stop=args.stop, jobs=args.jobs,
-               echo=lambda line: print(line, flush=True))
+               echo=lambda line: print(line, flush=True), wait=args.wait)
     if args.scheduler is not None:  # a batch on Dask, photometric stereo in pixel tiles
         from ..cluster import run_batch, summary_table
 

@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 
 from .frame import check_options, decode_frame, frame_size
-from ..atomic import sweep_temps
 from .pool import prepare_pool, run_tasks, start_pool
 from ..errors import InputError, PsrigError, StageError
 from ..imageio import read_image, read_mask
@@ -229,8 +228,6 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     inputs, failed = _verify(session, frames)
     if not force and not failed and session.stage_is_current("decode", params, inputs):
         return session.stage("decode")
-    # a run killed between a worker's write and its commit leaves hidden temporaries behind
-    sweep_temps(session.path("linear"))
     if pooled:
         prepare_pool()  # ... or while the headers are read (no-op when already running)
     sizes = _sizes(session, frames, binning, failed)
