@@ -78,6 +78,9 @@ def _reusable(session, previous, params, inputs, frame, reference_ids):
         return False
     if previous.get("inputs", {}).get(frame["file"]) != inputs.get(frame["file"]):
         return False
+    # decoded from this very file (not one another frame's ``file:`` now names)
+    if (previous.get("frames") or {}).get(frame["id"], {}).get("file") != frame["file"]:
+        return False
     if frame["kind"] in _LIT_KINDS and _previous_references(previous, frame["kind"]) != reference_ids:
         return False
     recorded = previous.get("outputs", {})
@@ -148,7 +151,7 @@ class _Run:
             if error:
                 self.failed[frame_id] = error
             else:
-                self.infos[frame_id] = info
+                self.infos[frame_id] = {**info, "file": self.session.frame(frame_id)["file"]}
                 self.hashes.update({self.session.rel(path): digest
                                     for path, digest in hashes.items()})
             if error and error.startswith("decoder crashed"):
@@ -226,6 +229,9 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     if pooled and force:
         prepare_pool()  # the fork server boots while the inputs are hashed
     inputs, failed = _verify(session, frames)
+    # what decode reads from the manifest: which file each frame is, its kind (what is
+    # subtracted from it) and an ambient frame's applies_to
+    inputs.update(session.manifest_input("decode", frames, ("id", "kind", "file", "applies_to")))
     if not force and not failed and session.stage_is_current("decode", params, inputs):
         return session.stage("decode")
     if pooled:
