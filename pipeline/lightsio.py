@@ -58,9 +58,19 @@ class LightSet:
             self.intensities = self.intensities[:, None]
         if len(self.intensities) != len(self.directions):
             raise InputError(f"intensities: {len(self.intensities)} rows for {len(self.directions)} lights")
+        _check_finite(self.intensities, "intensities", "intensity")
 
     def __len__(self):
         return len(self.directions)
+
+
+def _check_finite(values, key, what):
+    """InputError naming the first light whose ``values`` (K, ...) hold a NaN or an infinity:
+    a NaN intensity would blank every pixel, an infinite one silently drop its light."""
+    bad = ~np.isfinite(values).reshape(len(values), -1).all(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(f"{key}: light {k} has a non-finite {what} {np.asarray(values[k]).tolist()}")
 
 
 def check_directions(directions, where="lights"):

@@ -134,6 +134,7 @@ def _decode(task):
                                         scratch=_workspace.setdefault("decoder", {}))
         return exr, planes, saturated, info
     linear, saturated, info = decode_frame(source, **options)
+    _check_finite(linear, source)
     if tuple(linear.shape[:2]) != (height, width):
         raise PsrigError(f"decoded to {linear.shape[:2]}, expected {(height, width)} like the "
                          "other frames")
@@ -141,6 +142,16 @@ def _decode(task):
     exr = _exr_buffer(height, width, names)
     exr.fill(linear, names)
     return exr, [exr.planes[name] for name in names], saturated, info
+
+
+def _check_finite(linear, source):
+    """Refuse NaN and infinite values (float image files can hold them; raw integers cannot):
+    photometric stereo would silently lose every pixel they touch."""
+    finite = np.isfinite(linear)
+    if not finite.all():
+        bad = int(finite.size - np.count_nonzero(finite))
+        raise ImageFileError(f"{source}: {bad} value{'s' * (bad != 1)} NaN or infinite; a frame "
+                             "must hold finite linear values")
 
 
 def _exr_buffer(height, width, names):
