@@ -9,8 +9,10 @@ stage (:func:`pipeline.photometric.tiles.plan_normals`: scratch stack, shared sh
 one task per pixel tile solves its rows from the memory-mapped stack; a *tail* task assembles
 the tiles into ``normals/``, records the stage, and runs integrate and report. Every file is
 written by the task that computed it, atomically, so a worker killed mid-task leaves no partial
-output and Dask's rerun of the task writes the same bytes once. Workers must see the session
-folders at the same paths as the client (a shared file system).
+output and Dask's rerun of the task writes the same bytes once. The tail is safe to run again
+after a worker died in it: it finds the normals it recorded (or, their scratch gone, solves the
+session whole) and goes on. Workers must see the session folders at the same paths as the
+client (a shared file system).
 
 The client holds every session's lock for the whole batch (:mod:`pipeline.lock`); its tasks
 act under it (:func:`pipeline.lock.act_under` with the lock's token), so a task still running
@@ -103,8 +105,11 @@ def _session_head(root, token, options, forced, stop, tile_pixels):
 
 
 def _session_tail(outcome, plan, token, options, forced, stop, tiles):
-    """Task (after every tile of ``plan``): assemble normals, then the stages after it, under the
-    client's lock ``token``."""
+    """Task (after every tile of ``plan``): assemble normals, then the stages after it.
+
+    Run again after a worker died in it, it finds the normals it recorded, or solves them whole
+    when an earlier attempt had already removed the tiles' scratch.
+    """
     del tiles  # only a dependency: the tile files are found from the plan
     try:
         act_under(plan.root, token)
@@ -113,7 +118,7 @@ def _session_tail(outcome, plan, token, options, forced, stop, tiles):
         except PsrigError as exc:
             raise StageError(f"stage normals: {exc}") from None
         session = Session.open(plan.root, writer="run")
-        if assembled == WHOLE_IMAGE:  # the lights need a correction only a whole solve makes
+        if assembled == WHOLE_IMAGE:  # only a whole solve can make these normals
             run_stage(session, "normals", options, True, 1)
         outcome.stages.append(StageOutcome("normals", True, time.time() - plan.run.started))
         names = _stage_names(stop)
