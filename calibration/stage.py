@@ -247,7 +247,9 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
                          "decoded); run `psrig decode` first")
     rels = [session.rel(session.linear_path(f)) for f in needed]
     rels += [session.rel(session.saturation_path(f)) for f in frames if session.saturation_path(f).is_file()]
-    inputs = session.hash_inputs(rels)
+    # which light each frame was shot under, and the object frames' names in lights.lp
+    inputs = {**session.hash_inputs(rels), **session.manifest_input(
+        "calibrate", needed + session.frames("object"), ("id", "kind", "light", "file", "source"))}
     if not force and session.stage_is_current("calibrate", params, inputs):
         echo(f"{session.root}: calibrate is up to date")
         return None

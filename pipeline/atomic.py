@@ -6,11 +6,16 @@ truncated file.
 
 import contextlib
 import os
+import re
+import shutil
 import tempfile
 from pathlib import Path
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_path", "fsync_dir",
-           "atomic_write_begin", "atomic_commit", "discard_temp", "sweep_temps"]
+           "atomic_write_begin", "atomic_commit", "discard_temp", "sweep_tree", "is_temp_name"]
+
+# the names _temp_beside gives: "." + stem + "." + mkstemp's random part + ".tmp" + suffix
+_TEMP_NAME = re.compile(r"^\..*\.[^.]+\.tmp(\.[^.]*)?$")
 
 
 def _umask():
@@ -123,17 +128,55 @@ def atomic_write_text(path, text):
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def sweep_temps(folder):
-    """Remove temporary files an interrupted atomic write left in ``folder``; return their names.
+def is_temp_name(name):
+    """True for the names of the temporary files this module creates."""
+    return bool(_TEMP_NAME.match(name))
 
-    Only names of the form :func:`atomic_path` creates (``.<stem>.<random>.tmp<suffix>``) are
-    removed, never a finished file. Call it only while no other writer works in ``folder``.
+
+def sweep_tree(folder, *, recursive=True, everything=False):
+    """Remove what interrupted writers left under ``folder``; returns (files, bytes) removed.
+
+    Parameters
+    ----------
+    folder : path
+    recursive : bool
+        Also in sub-folders (symlinks are not followed).
+    everything : bool
+        ``folder`` is a scratch folder: remove it whole (a symlink in its place is unlinked,
+        never followed).
+
+    Call it only while no other writer works in ``folder`` (the session's lock says so).
     """
     folder = Path(folder)
-    if not folder.is_dir():
-        return []
-    stale = [p for p in folder.glob(".*.tmp*") if p.is_file() and ".tmp" in p.name[1:]]
-    for path in stale:
-        discard_temp(path)
-    return sorted(p.name for p in stale)
+    if everything:
+        if folder.is_symlink() or folder.is_file():
+            folder.unlink()
+            return 1, 0
+        if not folder.is_dir():
+            return 0, 0
+        files, size = _tree_size(folder)
+        shutil.rmtree(folder, ignore_errors=True)
+        return files, size
+    if not folder.is_dir() or folder.is_symlink():
+        return 0, 0
+    files = size = 0
+    for where, dirs, names in os.walk(folder) if recursive else [(str(folder), [], os.listdir(folder))]:
+        for name in names:
+            path = os.path.join(where, name)
+            if is_temp_name(name) and not os.path.islink(path) and os.path.isfile(path):
+                with contextlib.suppress(OSError):
+                    size += os.path.getsize(path)
+                    os.unlink(path)
+                    files += 1
+    return files, size
+
+
+def _tree_size(folder):
+    files = size = 0
+    for where, _, names in os.walk(folder):
+        for name in names:
+            with contextlib.suppress(OSError):
+                size += os.lstat(os.path.join(where, name)).st_size
+                files += 1
+    return files, size
 

@@ -9,8 +9,14 @@ stage (:func:`pipeline.photometric.tiles.plan_normals`: scratch stack, shared sh
 one task per pixel tile solves its rows from the memory-mapped stack; a *tail* task assembles
 the tiles into ``normals/``, records the stage, and runs integrate and report. Every file is
 written by the task that computed it, atomically, so a worker killed mid-task leaves no partial
-output and Dask's rerun of the task writes the same bytes once. Workers must see the session
-folders at the same paths as the client (a shared file system).
+output and Dask's rerun of the task writes the same bytes once. The tail is safe to run again
+after a worker died in it: it finds the normals it recorded (or, their scratch gone, solves the
+session whole) and goes on. Workers must see the session folders at the same paths as the
+client (a shared file system).
+
+The client holds every session's lock for the whole batch (:mod:`pipeline.lock`); its tasks
+act under it (:func:`pipeline.lock.act_under` with the lock's token), so a task still running
+after its client died writes nothing to the session's manifest.
 
 Dask is an optional dependency (``psrig[cluster]``): it is imported only inside these functions.
 """
@@ -22,9 +28,10 @@ import uuid
 from pathlib import Path
 
 from .errors import InputError, PsrigError, StageError
+from .lock import act_under
 from .photometric import WHOLE_IMAGE, assemble_normals, plan_normals, run_tile
 from .progress import progress
-from .runner import SessionOutcome, StageOutcome, check_stage_range, recorded_options, run_stage
+from .runner import SessionOutcome, StageOutcome, check_stage_range, lock_sessions, recorded_options, run_stage
 from .session import STAGES, Session
 
 __all__ = ["run_batch", "open_client", "summary_table", "TILE_PIXELS", "CONNECT_TIMEOUT"]
@@ -65,14 +72,16 @@ def _stage_names(stop):
     return STAGES[:STAGES.index(stop or STAGES[-1]) + 1]
 
 
-def _session_head(root, options, forced, stop, tile_pixels):
-    """Task: stages up to normals; returns (SessionOutcome, TilePlan or None).
+def _session_head(root, token, options, forced, stop, tile_pixels):
+    """Task: stages up to normals, under the client's lock ``token``; returns (SessionOutcome,
+    TilePlan or None).
 
     With no plan (normals up to date, or not asked for) the session is finished here.
     """
     outcome = SessionOutcome(root)
     try:
-        session = Session.open(root)
+        act_under(root, token)
+        session = Session.open(root, writer="run")
         for name in _stage_names(stop):
             if name != "normals":
                 outcome.stages.append(run_stage(session, name, options, name in forced, 1))
@@ -95,16 +104,21 @@ def _session_head(root, options, forced, stop, tile_pixels):
     return outcome, None
 
 
-def _session_tail(outcome, plan, options, forced, stop, tiles):
-    """Task (after every tile of ``plan``): assemble normals, then the stages after it."""
+def _session_tail(outcome, plan, token, options, forced, stop, tiles):
+    """Task (after every tile of ``plan``): assemble normals, then the stages after it.
+
+    Run again after a worker died in it, it finds the normals it recorded, or solves them whole
+    when an earlier attempt had already removed the tiles' scratch.
+    """
     del tiles  # only a dependency: the tile files are found from the plan
     try:
+        act_under(plan.root, token)
         try:
             assembled = assemble_normals(plan)
         except PsrigError as exc:
             raise StageError(f"stage normals: {exc}") from None
-        session = Session.open(plan.root)
-        if assembled == WHOLE_IMAGE:  # the lights need a correction only a whole solve makes
+        session = Session.open(plan.root, writer="run")
+        if assembled == WHOLE_IMAGE:  # only a whole solve can make these normals
             run_stage(session, "normals", options, True, 1)
         outcome.stages.append(StageOutcome("normals", True, time.time() - plan.run.started))
         names = _stage_names(stop)
@@ -116,7 +130,7 @@ def _session_tail(outcome, plan, options, forced, stop, tiles):
 
 
 def run_batch(roots, *, scheduler=None, jobs=2, options=None, force=False, start=None, stop=None,
-              echo=None, tile_pixels=TILE_PIXELS, tile_hook=None, show_progress=True):
+              echo=None, tile_pixels=TILE_PIXELS, tile_hook=None, show_progress=True, wait=False):
     """Run every stage that is not up to date on each session, on a Dask cluster.
 
     Parameters
@@ -136,6 +150,8 @@ def run_batch(roots, *, scheduler=None, jobs=2, options=None, force=False, start
     show_progress : bool
         A bar of finished sessions and tiles over their total (the total grows as sessions are
         planned).
+    wait : bool
+        Wait for other commands writing a session instead of failing it.
 
     Returns
     -------
@@ -146,9 +162,15 @@ def run_batch(roots, *, scheduler=None, jobs=2, options=None, force=False, start
     roots = [str(Path(r)) for r in roots]
     options = options or {}
     forced = set(STAGES if force else STAGES[STAGES.index(start):] if start else ())
-    with open_client(scheduler, jobs) as client, \
-            progress(total=len(roots), desc="sessions+tiles", unit="task", disable=not show_progress) as bar:
-        outcomes = _drive(client, roots, options, forced, stop, tile_pixels, tile_hook, bar, echo)
+    sessions = lock_sessions(roots, "run", wait=wait, echo=echo)
+    try:
+        with open_client(scheduler, jobs) as client, \
+                progress(total=len(roots), desc="sessions+tiles", unit="task", disable=not show_progress) as bar:
+            outcomes = _drive(client, sessions, options, forced, stop, tile_pixels, tile_hook, bar, echo)
+    finally:
+        for session in sessions.values():
+            if isinstance(session, Session):
+                session.release()
     return [outcomes[root] for root in roots]
 
 
@@ -166,12 +188,18 @@ class _Outcomes(dict):
             self.echo(f"{root}: {stage.describe()}")
 
 
-def _drive(client, roots, options, forced, stop, tile_pixels, tile_hook, bar, echo):
-    """Submit heads; on each finished head submit its tiles and tail; collect outcomes."""
+def _drive(client, sessions, options, forced, stop, tile_pixels, tile_hook, bar, echo):
+    """Submit heads of the locked ``sessions`` ({root: Session or SessionOutcome with the
+    error}); on each finished head submit its tiles and tail; collect outcomes."""
     from distributed import as_completed
 
     batch = uuid.uuid4().hex[:8]
     kinds, partial, outcomes = {}, {}, _Outcomes(echo)
+    tokens = {root: s.lock.token for root, s in sessions.items() if isinstance(s, Session)}
+    for root, failed in sessions.items():
+        if root not in tokens:
+            outcomes[root] = failed
+            bar.update(1)
 
     def submit(kind, root, func, *args):
         future = client.submit(func, *args, pure=False, key=f"psrig-{kind}-{batch}-{len(kinds)}")
@@ -179,8 +207,8 @@ def _drive(client, roots, options, forced, stop, tile_pixels, tile_hook, bar, ec
         return future
 
     # workers may run in another folder: they get absolute paths, the user's spelling is kept
-    pending = as_completed([submit("head", root, _session_head, str(Path(root).absolute()), options, forced,
-                                   stop, tile_pixels) for root in roots])
+    pending = as_completed([submit("head", root, _session_head, str(Path(root).absolute()), tokens[root],
+                                   options, forced, stop, tile_pixels) for root in tokens])
     for future in pending:
         kind, root = kinds[future.key]
         if future.status != "finished":
@@ -203,7 +231,8 @@ def _drive(client, roots, options, forced, stop, tile_pixels, tile_hook, bar, ec
         bar.total += len(tiles)
         bar.refresh()
         pending.update(tiles)
-        pending.add(submit("tail", root, _session_tail, outcome, plan, options, forced, stop, tiles))
+        pending.add(submit("tail", root, _session_tail, outcome, plan, tokens[root], options, forced, stop,
+                           tiles))
     return outcomes
 
 

@@ -17,6 +17,7 @@ from .errors import SessionError, StageError
 from .evaluate import evaluate_session
 from .report import INDEX
 from .runner import run_session
+from .yamlio import load_yaml
 
 __all__ = ["run_demo", "prepare_folder", "DEMO_MARK"]
 
@@ -35,7 +36,7 @@ def prepare_folder(folder, force=False):
         raise SessionError(f"{folder}: exists, is not empty and is not a session; choose an "
                            "empty or new folder for the demo")
     try:
-        data = yaml.safe_load(manifest.read_text(encoding="utf-8")) or {}
+        data = load_yaml(manifest.read_text(encoding="utf-8")) or {}
     except yaml.YAMLError:
         data = {}
     if not (isinstance(data, dict) and isinstance(data.get("rig"), dict)
@@ -44,7 +45,10 @@ def prepare_folder(folder, force=False):
     if not force:
         raise SessionError(f"{folder}: already holds a demo session; use --force to replace it "
                            "(or `psrig run` to reprocess it)")
-    shutil.rmtree(folder)
+    from .session import Session
+
+    with Session.open(folder, writer="demo"):  # not under a command still writing it
+        shutil.rmtree(folder)
     return folder
 
 
@@ -68,7 +72,7 @@ def _capture(folder, echo):
         capture_session(Session.create(folder, rig={"name": "sim"}), rig)
     else:
         capture_session(folder, rig)
-    session = Session.open(folder)
+    session = Session.open(folder, writer="demo")  # held until the demo is done
     session.manifest["rig"][DEMO_MARK] = True
     session.save()
     echo(f"capture: {len(session.frames())} frames in {time.perf_counter() - start:.1f} s")

@@ -25,6 +25,7 @@ from .errors import InputError
 from .imageio import read_image, read_mask, read_normal_png, write_image
 from .lightsio import read_lights
 from .paths import DEPTH, ERROR_MAP, EVAL, INTEGRATION, LIGHTS, NORMALS, NORMALS_MASK
+from .yamlio import load_yaml
 
 __all__ = ["angular_error", "error_stats", "light_errors", "intensity_errors", "position_errors", "depth_error",
            "error_map_rgb", "normal_errors", "lights_imported", "evaluate_session", "EVAL_FILE", "ERROR_MAP",
@@ -255,7 +256,7 @@ def _eval_depth(session):
     projection = "orthographic"
     info_path = session.path(INTEGRATION)
     if info_path.is_file():
-        info = yaml.safe_load(info_path.read_text(encoding="utf-8")) or {}
+        info = load_yaml(info_path.read_text(encoding="utf-8")) or {}
         projection = info.get("projection", projection)
     return depth_error(read_image(est_path)[:, :, 0], read_image(session.truth("depth"))[:, :, 0],
                        projection)

@@ -13,6 +13,7 @@ import yaml
 
 from .atomic import atomic_write_text
 from .errors import InputError
+from .yamlio import dump_yaml, load_yaml
 
 __all__ = ["LightSet", "read_lights", "read_lights_text", "read_lp", "write_lp",
            "read_lights_yaml", "write_lights_yaml", "check_directions"]
@@ -57,9 +58,19 @@ class LightSet:
             self.intensities = self.intensities[:, None]
         if len(self.intensities) != len(self.directions):
             raise InputError(f"intensities: {len(self.intensities)} rows for {len(self.directions)} lights")
+        _check_finite(self.intensities, "intensities", "intensity")
 
     def __len__(self):
         return len(self.directions)
+
+
+def _check_finite(values, key, what):
+    """InputError naming the first light whose ``values`` (K, ...) hold a NaN or an infinity:
+    a NaN intensity would blank every pixel, an infinite one silently drop its light."""
+    bad = ~np.isfinite(values).reshape(len(values), -1).all(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(f"{key}: light {k} has a non-finite {what} {np.asarray(values[k]).tolist()}")
 
 
 def check_directions(directions, where="lights"):
@@ -164,7 +175,7 @@ def read_lights_yaml(path):
     """Read ``lights.yaml`` into a :class:`LightSet`, naming the key at fault on error."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = load_yaml(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: not valid YAML: {exc}") from None
     if not isinstance(data, dict) or "directions" not in data:
@@ -205,4 +216,4 @@ def write_lights_yaml(path, lights):
     if lights.filenames:
         data["filenames"] = list(lights.filenames)
     data.update(lights.extra)
-    atomic_write_text(path, yaml.safe_dump(data, sort_keys=False))
+    atomic_write_text(path, dump_yaml(data))

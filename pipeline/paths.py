@@ -7,7 +7,11 @@ on where it lies. Paths are POSIX-style and relative to the session folder
 
 __all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP",
            "OBSERVATIONS", "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION",
-           "REPORT", "TRUTH_LIGHTS", "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK"]
+           "REPORT", "TRUTH_LIGHTS", "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK", "DECODE_SCRATCH",
+           "TILES_SCRATCH", "SCRATCH"]
+
+#: decode stage: the mean reference frames of one run (removed when it ends)
+DECODE_SCRATCH = "linear/.decode"
 
 #: calibrate stage (or an importer) -> normals, report, eval: the lights in use
 LIGHTS = "calibration/lights.yaml"
@@ -27,6 +31,11 @@ OBSERVATIONS = "normals/observations.png"
 #: eval -> report
 ERROR_MAP = "normals/error.png"
 EVAL = "normals/eval.yaml"
+
+#: tiled normals stage (pipeline.photometric.tiles): the stack and tiles of one run
+TILES_SCRATCH = "normals/.tiles"
+#: every stage's scratch folder: the next writer removes a killed run's (Session.acquire)
+SCRATCH = (DECODE_SCRATCH, TILES_SCRATCH)
 
 #: integrate stage -> report, eval
 DEPTH = "depth/depth.exr"

@@ -19,11 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import PsrigError, StageError
+from .errors import PsrigError, SessionError, StageError
+from .lock import act_under, lifeline, watch_lifeline
 from .paths import LIGHTS
 from .session import STAGES, Session
 
-__all__ = ["run_session", "run_sessions", "run_stage", "check_stage_range", "RUNNERS", "StageOutcome",
+__all__ = ["run_session", "run_sessions", "lock_sessions", "run_stage", "check_stage_range", "RUNNERS", "StageOutcome",
            "SessionOutcome", "stage_options", "recorded_options"]
 
 
@@ -195,7 +196,7 @@ def check_stage_range(start, stop):
             raise StageError(f"{flag} {value!r}: not a stage; stages are {', '.join(STAGES)}")
 
 
-def run_session(root, *, options=None, force=False, start=None, stop=None, jobs=None, echo=None):
+def run_session(root, *, options=None, force=False, start=None, stop=None, jobs=None, echo=None, wait=False):
     """Run every stage of one session that is not up to date.
 
     Parameters
@@ -214,28 +215,35 @@ def run_session(root, *, options=None, force=False, start=None, stop=None, jobs=
         Worker processes inside a stage (decode).
     echo : callable, optional
         Called with one line per stage ("decode: up to date", "normals: ran in 3.2 s").
+    wait : bool
+        Wait for another command writing the session (its lock) instead of failing.
 
     Returns
     -------
     list of StageOutcome
-        Raises StageError naming the stage (and the file) when one cannot run.
+        Raises StageError naming the stage (and the file) when one cannot run, SessionLocked
+        when another command writes the session.
     """
     check_stage_range(start, stop)
-    session = Session.open(root)
     forced = set(STAGES if force else STAGES[STAGES.index(start):] if start else ())
     outcomes = []
-    for name in STAGES[:STAGES.index(stop or STAGES[-1]) + 1]:
-        outcome = run_stage(session, name, options or {}, name in forced, jobs)
-        outcomes.append(outcome)
-        if echo:
-            echo(outcome.describe())
+    with Session.open(root, writer="run", wait=wait, on_wait=echo) as session:
+        if session.swept and echo:
+            echo(session.describe_swept())
+        for name in STAGES[:STAGES.index(stop or STAGES[-1]) + 1]:
+            outcome = run_stage(session, name, options or {}, name in forced, jobs)
+            outcomes.append(outcome)
+            if echo:
+                echo(outcome.describe())
     return outcomes
 
 
-def _run_one(root, options, force, start, stop, jobs):
-    """Process-pool worker: one session, errors returned as text (they cross processes)."""
+def _run_one(root, options, force, start, stop, jobs, token):
+    """Process-pool worker: one session, under the parent's lock (``token``); errors returned as
+    text (they cross processes)."""
     outcome = SessionOutcome(str(root))
     try:
+        act_under(root, token)
         outcome.stages = run_session(root, options=options, force=force, start=start, stop=stop,
                                      jobs=jobs)
     except PsrigError as exc:
@@ -243,12 +251,33 @@ def _run_one(root, options, force, start, stop, jobs):
     return outcome
 
 
-def run_sessions(roots, *, options=None, force=False, start=None, stop=None, jobs=1, echo=None):
+def lock_sessions(roots, command, *, wait=False, echo=None):
+    """{root: Session holding its lock, or a SessionOutcome with the error} for each root."""
+    sessions, seen = {}, {}
+    for root in roots:
+        say = (lambda line, root=root: echo(f"{root}: {line}")) if echo else None
+        same = seen.setdefault(Path(root).resolve(), root)
+        try:
+            if same != root:
+                raise SessionError(f"{root}: the same session as {same}, given twice")
+            sessions[root] = Session.open(root, writer=command, wait=wait, on_wait=say)
+        except PsrigError as exc:
+            sessions[root] = SessionOutcome(root, error=str(exc))
+            continue
+        if sessions[root].swept and echo:
+            echo(sessions[root].describe_swept())
+    return sessions
+
+
+def run_sessions(roots, *, options=None, force=False, start=None, stop=None, jobs=1, echo=None,
+                 wait=False):
     """Run several sessions, ``jobs`` at a time in separate processes.
 
     Returns a list of SessionOutcome in the order of ``roots``; a failing session does not stop
     the others. With one job the sessions run in this process, one after the other. (A batch
     on Dask, with photometric stereo in pixel tiles, is :func:`pipeline.cluster.run_batch`.)
+    With more, this process takes every session's lock (``wait``: waiting for other writers)
+    and the worker processes act under it; they die with this process (:mod:`pipeline.lock`).
     """
     roots = [str(Path(r)) for r in roots]
     if jobs <= 1 or len(roots) == 1:
@@ -259,16 +288,24 @@ def run_sessions(roots, *, options=None, force=False, start=None, stop=None, job
             try:
                 outcome.stages = run_session(root, options=options, force=force, start=start,
                                              stop=stop, jobs=None if len(roots) == 1 else 1,
-                                             echo=say)
+                                             echo=say, wait=wait)
             except PsrigError as exc:
                 outcome.error = str(exc)
             outcomes.append(outcome)
         return outcomes
+    sessions, outcomes = lock_sessions(roots, "run", wait=wait, echo=echo), {}
     context = multiprocessing.get_context("forkserver")
-    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context) as pool:
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=watch_lifeline,
+                                                initargs=(lifeline(context),)) as pool:
         # one decode worker per session: the sessions already share the cores
-        futures = [pool.submit(_run_one, root, options, force, start, stop, 1) for root in roots]
-        outcomes = [f.result() for f in futures]
+        futures = {root: pool.submit(_run_one, root, options, force, start, stop, 1, session.lock.token)
+                   for root, session in sessions.items() if not isinstance(session, SessionOutcome)}
+        for root in roots:
+            outcomes[root] = futures[root].result() if root in futures else sessions[root]
+    for session in sessions.values():
+        if not isinstance(session, SessionOutcome):
+            session.release()
+    outcomes = [outcomes[root] for root in roots]
     if echo:
         for outcome in outcomes:
             for stage in outcome.stages:

@@ -11,20 +11,27 @@ A session is the unit every stage reads and writes::
       normals/  depth/  report/
       truth/         ground truth when known (simulated or imported sessions)
 
-Every manifest write is atomic, so a process killed at any moment leaves a valid session.
+Every manifest write is atomic, so a process killed at any moment leaves a valid session. A
+command that writes a session opens it with ``writer=`` (its name): it then holds the session's
+lock (:mod:`pipeline.lock`) until it closes it or ends, the session's folders are checked to lie
+inside it, and temporary files an interrupted writer left are removed (:attr:`Session.swept`).
 """
 
 import datetime as _dt
 import hashlib
+import json
+import math
 import re
 from pathlib import Path, PurePosixPath
 
 import yaml
 
 from . import __version__
-from .atomic import atomic_write_bytes, atomic_write_text
+from . import lock as _lock
+from .atomic import atomic_write_bytes, atomic_write_text, sweep_tree
 from .errors import ManifestError, SessionError
-from .yamlio import plain
+from .paths import SCRATCH
+from .yamlio import dump_yaml, load_yaml, plain
 
 __all__ = ["Session", "FORMAT", "FRAME_KINDS", "STAGES", "file_sha256", "now_iso"]
 
@@ -36,10 +43,11 @@ FRAME_KINDS = ("object", "sphere", "dark", "ambient", "target", "outline")
 LIT_KINDS = ("object", "sphere", "target")
 STAGES = ("decode", "calibrate", "normals", "integrate", "report")
 FOLDERS = ("raw", "linear", "calibration", "normals", "depth", "report", "truth")
-# libyaml's safe loader and dumper when PyYAML has them (same text, ~5x faster: a capture saves
-# the manifest after every frame), else PyYAML's pure-Python safe ones.
-_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+#: Folders whose stale temporaries a writer sweeps when it takes the lock; raw/ is capture's own
+#: (``psrig capture --resume`` sorts out what an interrupted capture left there).
+SWEPT = ("", "linear", "calibration", "normals", "depth", "report", "truth")
+#: Status values of a stage record ('incomplete': a decode still running, or interrupted).
+STATUSES = ("ok", "partial", "failed", "incomplete")
 _SHA_RE = re.compile(r"^[0-9a-f]{64}$")
 _ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
@@ -80,10 +88,13 @@ class Session:
     def __init__(self, root, manifest):
         self.root = Path(root)
         self.manifest = manifest
+        self.lock = None
+        #: {folder: (files, bytes)} of the stale temporaries removed when the lock was taken
+        self.swept = {}
 
     # ------------------------------------------------------------------ opening and saving
     @classmethod
-    def create(cls, root, *, rig=None, camera=None, lights=None, exist_ok=False):
+    def create(cls, root, *, rig=None, camera=None, lights=None, exist_ok=False, writer=None):
         """Create a session folder with an empty manifest.
 
         Parameters
@@ -93,11 +104,13 @@ class Session:
             already a session, which is then opened).
         rig, camera, lights : dict, optional
             Descriptions stored under the manifest keys of the same names.
+        writer : str, optional
+            The command creating it, which then holds the session's lock (see :meth:`open`).
         """
         root = Path(root)
         if (root / MANIFEST).exists():
             if exist_ok:
-                return cls.open(root)
+                return cls.open(root, writer=writer)
             raise SessionError(f"{root}: already a session (session.yaml exists)")
         if root.exists() and any(root.iterdir()):
             raise SessionError(f"{root}: folder exists and is not empty; refusing to make a session there")
@@ -116,30 +129,134 @@ class Session:
         session = cls(root, manifest)
         for name in FOLDERS:
             (root / name).mkdir(exist_ok=True)
-        session.save()
-        return session
+        # Written without the lock: nobody else can be writing a session that does not exist yet,
+        # and the lock file comes after the manifest, so a capture killed here leaves a folder
+        # that ``--resume`` recognises as stillborn.
+        session._write()
+        return session.acquire(writer) if writer else session
 
     @classmethod
-    def open(cls, root):
-        """Open an existing session, validating its manifest."""
+    def open(cls, root, *, writer=None, wait=False, on_wait=None):
+        """Open an existing session, validating its manifest.
+
+        Parameters
+        ----------
+        root : path
+        writer : str, optional
+            The command that will write the session (``'run'``, ``'decode'``, ...). It takes the
+            session's lock first (:meth:`acquire`). Without it the session is opened to read;
+            its :meth:`save` then takes the lock just for the write.
+        wait : bool
+            With ``writer``: wait for another writer to finish instead of raising
+            :class:`pipeline.lock.SessionLocked`; ``on_wait(line)`` is told once.
+        """
         root = Path(root)
-        path = root / MANIFEST
         if not root.is_dir():
             raise SessionError(f"{root}: no such session folder")
-        if not path.is_file():
+        if not (root / MANIFEST).is_file():
             raise SessionError(f"{root}: not a session folder (no {MANIFEST})")
+        session = cls(root, None)
+        if writer:
+            return session.acquire(writer, wait=wait, on_wait=on_wait)
+        session.manifest = read_manifest(root / MANIFEST)
+        return session
+
+    def acquire(self, writer, *, wait=False, on_wait=None):
+        """Take the session's lock for ``writer`` (a command name), then re-read the manifest
+        (another writer may have changed it), check that the session's folders lie inside it and
+        sweep what interrupted writers left (:attr:`swept`). Returns self.
+
+        Calling it again on a session that holds the lock does nothing. In a worker process
+        acting under its parent's lock (:func:`pipeline.lock.act_under`) nothing is swept.
+        """
+        if self.lock is not None:
+            return self
+        lock = _lock.acquire(self.root, writer, wait=wait, on_wait=on_wait)
         try:
-            manifest = yaml.load(path.read_text(encoding="utf-8"), Loader=_LOADER)
-        except (yaml.YAMLError, UnicodeDecodeError) as exc:
-            raise ManifestError(f"{path}: not valid YAML: {exc}") from None
-        validate_manifest(manifest, str(path))
-        return cls(root, manifest)
+            self.manifest = read_manifest(self.root / MANIFEST)
+            self.check_folders()
+            if not lock.delegated and lock.users == 1:
+                self.swept = self._sweep()
+        except BaseException:
+            lock.release()
+            raise
+        self.lock = lock
+        return self
+
+    def release(self):
+        """Give up the session's lock (if this session holds it)."""
+        lock, self.lock = self.lock, None
+        if lock is not None:
+            lock.release()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+
+    def __del__(self):
+        # a session dropped without release() gives its share of the lock back, like a file
+        try:
+            self.release()
+        except Exception:  # noqa: BLE001 - interpreter shutdown: the kernel drops the lock anyway
+            pass
+
+    def check_folders(self):
+        """Refuse a session whose folders are not folders inside it (a symlinked ``normals/``
+        pointing elsewhere): psrig writes only inside the session folder. Checked before any
+        write of a writer."""
+        inside = self.root.resolve()
+        for name in FOLDERS:
+            folder = self.root / name
+            if not (folder.exists() or folder.is_symlink()):
+                continue
+            resolved = folder.resolve()
+            if not resolved.is_relative_to(inside):
+                raise SessionError(f"{folder}: links to {resolved}, outside the session folder; "
+                                   "psrig writes only inside the session (make it a real folder)")
+            if not resolved.is_dir():
+                raise SessionError(f"{folder}: not a folder")
+
+    def _sweep(self):
+        """Remove the temporaries and scratch folders interrupted writers left; {folder: (files,
+        bytes)}. Only the lock holder calls it: no live writer can own them."""
+        swept = {}
+        for name in SWEPT:
+            files, size = sweep_tree(self.root / name, recursive=bool(name))
+            for scratch in SCRATCH:
+                if scratch.startswith(f"{name}/") and name:
+                    more, more_size = sweep_tree(self.root / scratch, everything=True)
+                    files, size = files + more, size + more_size
+            if files:
+                swept[name or "."] = (files, size)
+        return swept
+
+    def describe_swept(self):
+        """One line on what :attr:`swept` removed, or ''."""
+        if not self.swept:
+            return ""
+        files = sum(f for f, _ in self.swept.values())
+        size = sum(b for _, b in self.swept.values())
+        where = ", ".join(f"{name}/ {f}" for name, (f, _) in self.swept.items())
+        return (f"{self.root}: removed {files} temporary file{'s' * (files != 1)} "
+                f"({size / 1e6:.1f} MB) left by an interrupted run ({where})")
 
     def save(self):
-        """Validate and atomically write ``session.yaml``."""
+        """Validate and atomically write ``session.yaml`` (under the session's lock)."""
+        with _lock.authorize(self.root):
+            self._write()
+
+    def _write(self):
         validate_manifest(self.manifest, str(self.root / MANIFEST))
-        text = yaml.dump(self.manifest, Dumper=_DUMPER, sort_keys=False, allow_unicode=True)
-        atomic_write_text(self.root / MANIFEST, text)
+        frames = self.manifest["frames"]
+        # frame_count near the top and saved last: a manifest cut short at a line boundary
+        # lost one of them (or frames: they no longer match the count) and is refused on reading
+        rest = [(k, v) for k, v in self.manifest.items() if k not in ("format", "frame_count", "saved")]
+        self.manifest.clear()  # in place: callers may hold the dict
+        self.manifest.update([("format", FORMAT), ("frame_count", len(frames))] + rest)
+        self.manifest["saved"] = now_iso()
+        atomic_write_text(self.root / MANIFEST, dump_yaml(self.manifest))
 
     def __repr__(self):
         return f"Session({str(self.root)!r}, frames={len(self.frames())})"
@@ -158,12 +275,12 @@ class Session:
         return Path(path).resolve().relative_to(self.root.resolve()).as_posix()
 
     def linear_path(self, frame):
-        """Where the decoded float32 EXR of ``frame`` (dict or id) lives."""
-        return self.root / "linear" / f"{_frame_id(frame)}.exr"
+        """Where the decoded float32 EXR of ``frame`` (dict or id) lives (checked like :meth:`path`)."""
+        return self.path(f"linear/{_frame_id(frame)}.exr")
 
     def saturation_path(self, frame):
-        """Where the saturation mask PNG of ``frame`` (dict or id) lives."""
-        return self.root / "linear" / f"{_frame_id(frame)}_sat.png"
+        """Where the saturation mask PNG of ``frame`` (dict or id) lives (checked like :meth:`path`)."""
+        return self.path(f"linear/{_frame_id(frame)}_sat.png")
 
     # ------------------------------------------------------------------ frames
     def frames(self, kind=None):
@@ -291,6 +408,17 @@ class Session:
             hashes[rel] = file_sha256(path)
         return hashes
 
+    def manifest_input(self, label, frames, keys):
+        """A stage input {``session.yaml#<label>``: sha256} covering manifest fields the stage reads.
+
+        ``frames`` (dicts) and ``keys`` (the fields read, e.g. ``('id', 'light')``) are hashed in
+        order, so that editing any of them in ``session.yaml`` (swapping two frames' ``light``,
+        pointing a ``file:`` elsewhere) makes the stage's record stale like a changed file.
+        """
+        rows = [[frame.get(key) for key in keys] for frame in frames]
+        text = json.dumps({"keys": list(keys), "frames": rows}, sort_keys=True, default=str)
+        return {f"{MANIFEST}#{label}": hashlib.sha256(text.encode()).hexdigest()}
+
     def stage_is_current(self, name, params, inputs):
         """True when stage ``name`` ran with these params and these input hashes.
 
@@ -358,6 +486,37 @@ class Session:
             self.save()
 
 
+def read_manifest(path):
+    """The validated manifest (dict) of ``session.yaml`` at ``path``; ManifestError naming it."""
+    try:
+        manifest = load_yaml(Path(path).read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise ManifestError(f"{path}: not valid YAML: {exc}") from None
+    except OSError as exc:
+        raise ManifestError(f"{path}: cannot read the manifest ({exc.strerror})") from None
+    validate_manifest(manifest, str(path))
+    _check_complete(manifest, str(path))
+    return manifest
+
+
+def _validate_subtracted(subtracted, where):
+    """``subtracted`` of a decode record: {kind, frames, by_kind: {lit kind: {kind, frames}}}."""
+    if subtracted is None:
+        return
+    entries = [(where, subtracted)] + [(f"{where}.by_kind.{k}", v)
+                                       for k, v in (subtracted.get("by_kind") or {}).items()]
+    if not isinstance(subtracted.get("by_kind") or {}, dict):
+        raise ManifestError(f"{where}.by_kind: expected a mapping, got {subtracted['by_kind']!r}")
+    for place, entry in entries:
+        if not isinstance(entry, dict):
+            raise ManifestError(f"{place}: expected a mapping, got {entry!r}")
+        kind, frames = entry.get("kind"), entry.get("frames") or []
+        if kind is not None and not isinstance(kind, str):
+            raise ManifestError(f"{place}.kind: expected a frame kind, got {kind!r}")
+        if not isinstance(frames, list) or not all(isinstance(f, str) for f in frames):
+            raise ManifestError(f"{place}.frames: expected a list of frame ids, got {frames!r}")
+
+
 def _output_hashes(session, outputs):
     if isinstance(outputs, dict):
         return {check_relative(rel, "outputs"): digest for rel, digest in outputs.items()}
@@ -381,13 +540,40 @@ def validate_manifest(manifest, where):
     frames = manifest.setdefault("frames", [])
     if not isinstance(frames, list):
         raise ManifestError(f"{where}: key 'frames' must be a list")
-    seen = set()
+    seen, files = set(), {}
     for i, frame in enumerate(frames):
         _validate_frame(frame, f"{where}: frames[{i}]", seen)
+        other = files.setdefault(frame["file"], frame["id"])
+        if other != frame["id"]:
+            raise ManifestError(f"{where}: frames[{i}].file: frames {other!r} and {frame['id']!r} both "
+                                f"name {frame['file']!r}; every frame has a raw file of its own")
     for name, record in manifest["stages"].items():
         _validate_stage(record, f"{where}: stages.{name}")
     for key, rel in manifest["truth"].items():
         check_relative(rel, f"{where}: truth.{key}")
+    object_mask = manifest["lights"].get("object_mask")
+    if object_mask is not None:
+        check_relative(object_mask, f"{where}: lights.object_mask")
+
+
+def _check_complete(manifest, where):
+    """Refuse a manifest read from disk that was cut short: saved by this version (it has
+    ``frame_count``) but without its last key ``saved``, or listing other than ``frame_count``
+    frames."""
+    count = manifest.get("frame_count")
+    if count is None:
+        return  # saved by an earlier version, which did not count
+    if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+        raise ManifestError(f"{where}: key 'frame_count' must be a number of frames, got {count!r}")
+    if "saved" not in manifest:
+        raise ManifestError(f"{where}: the manifest ends before its last key 'saved': the file was cut "
+                            "short; restore session.yaml from a backup")
+    listed = len(manifest["frames"])
+    if listed != count:
+        cause = ("it lost frames (cut short?): restore session.yaml from a backup; or, "
+                 if listed < count else "")
+        raise ManifestError(f"{where}: lists {listed} frames but was saved with {count} (frame_count): "
+                            f"{cause}if the frames were changed by hand on purpose, set frame_count: {listed}")
 
 
 def _validate_frame(frame, where, seen):
@@ -412,14 +598,43 @@ def _validate_frame(frame, where, seen):
     check_relative(frame["file"], f"{where}.file")
     if not isinstance(frame["sha256"], str) or not _SHA_RE.match(frame["sha256"]):
         raise ManifestError(f"{where}.sha256: expected 64 lowercase hex digits, got {frame['sha256']!r}")
+    applies = frame.get("applies_to")
+    if applies is not None and (not isinstance(applies, list) or any(k not in LIT_KINDS for k in applies)):
+        raise ManifestError(f"{where}.applies_to: expected a list of lit kinds ({', '.join(LIT_KINDS)}), "
+                            f"got {applies!r}")
+    if frame.get("source") is not None and not isinstance(frame["source"], str):
+        raise ManifestError(f"{where}.source: expected a file name, got {frame['source']!r}")
+
+
+#: Types of the stage-record fields psrig reads (a field may be absent): {key: (types, what)}
+_RECORD_FIELDS = {
+    "params": (dict, "a mapping"), "inputs": (dict, "a mapping"), "outputs": (dict, "a mapping"),
+    "status": (str, "one of " + ", ".join(STATUSES)), "version": (str, "a version"),
+    "finished": (str, "a date"), "seconds": ((int, float), "a number of seconds"),
+    "failed": (dict, "a mapping of frame ids to reasons"), "frames": (dict, "a mapping of frame ids"),
+    "subtracted": (dict, "a mapping"), "frames_not_raw": (list, "a list of frame ids"),
+    "warnings": (list, "a list"), "status_counts": (dict, "a mapping of counts"),
+    "pixels": (int, "a number of pixels"), "flagged": (dict, "a mapping of lights to reasons"),
+}
 
 
 def _validate_stage(record, where):
     if not isinstance(record, dict):
         raise ManifestError(f"{where}: must be a mapping")
-    for key in ("params", "inputs", "outputs"):
-        if not isinstance(record.get(key, {}), dict):
-            raise ManifestError(f"{where}.{key}: must be a mapping")
+    for key, (types, what) in _RECORD_FIELDS.items():
+        value = record.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, types)):
+            raise ManifestError(f"{where}.{key}: expected {what}, got {value!r}")
+    if record.get("status", "ok") not in STATUSES:
+        raise ManifestError(f"{where}.status: expected one of {', '.join(STATUSES)}, got {record['status']!r}")
+    if not math.isfinite(record.get("seconds") or 0):
+        raise ManifestError(f"{where}.seconds: expected a number of seconds, got {record['seconds']!r}")
+    for key in ("frames", "failed"):
+        for frame_id, value in (record.get(key) or {}).items():
+            if not isinstance(value, dict if key == "frames" else str):
+                raise ManifestError(f"{where}.{key}.{frame_id}: expected "
+                                    f"{'a mapping' if key == 'frames' else 'a reason'}, got {value!r}")
+    _validate_subtracted(record.get("subtracted"), f"{where}.subtracted")
     for key in ("inputs", "outputs"):
         for rel, digest in (record.get(key) or {}).items():
             check_relative(rel, f"{where}.{key}")

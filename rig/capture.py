@@ -187,7 +187,7 @@ def capture_session(target, rig_config, *, resume=False, sim=None, progress=True
         checked = None
         if preview and not (session and any(f.get("light") is not None for f in session.frames())):
             checked = preview_check(rig_config, devices, max_clipped, echo)
-        session = session or Session.create(root)
+        session = (session or Session.create(root)).acquire("capture")
         if checked is not None:
             session.manifest["rig"]["preview"] = checked
         _record_rig(session, rig_config, devices, echo, devices.exposure)

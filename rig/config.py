@@ -32,7 +32,7 @@ import yaml
 
 from pipeline.errors import InputError
 from pipeline.lightsio import LightSet, read_lp
-from pipeline.yamlio import plain
+from pipeline.yamlio import load_yaml, plain
 from rig import checks
 from rig.checks import ConfigError
 from rig.drivers import SHARED_LIGHT_KEYS, camera_driver, light_driver
@@ -409,7 +409,7 @@ def parse_rigs(text, source="rigs.yaml", base_dir=None):
     ``source`` names the file in messages; ``base_dir`` resolves relative ``lp`` paths.
     """
     try:
-        data = yaml.load(text, Loader=_StrictLoader)
+        data = load_yaml(text, loader=_StrictLoader)
     except ConfigError as exc:
         raise ConfigError(f"{source}: {exc}") from None
     except yaml.YAMLError as exc:
@@ -464,7 +464,7 @@ def load_rigs(path=None):
 def default_rig_name(path=None):
     """The rig file's ``default:`` rig, or ``sim`` when it names none."""
     found = find_rigs_file(path)
-    data = yaml.safe_load(found.read_text(encoding="utf-8")) if found and found.is_file() else None
+    data = load_yaml(found.read_text(encoding="utf-8")) if found and found.is_file() else None
     load_rigs(path)  # the whole file must be valid before any of it is used
     return (data or {}).get("default") or "sim"
 

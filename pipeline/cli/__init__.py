@@ -7,10 +7,12 @@ code or None). :data:`COMMANDS` lists them in the order ``psrig --help`` shows t
 
 import argparse
 import importlib
+import os
 import sys
 
 from .. import __version__
 from ..errors import PsrigError
+from .writing import WRITERS, add_wait_option
 
 __all__ = ["main", "COMMANDS"]
 
@@ -32,6 +34,9 @@ def build_parser():
                 raise
             continue
         module.register(sub)
+    for name in WRITERS:
+        if name in sub.choices:
+            add_wait_option(sub.choices[name])
     return parser
 
 
@@ -44,13 +49,26 @@ def main(argv=None):
         return 2
     try:
         code = args.func(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
     except PsrigError as exc:
         print(f"psrig {args.command}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"psrig {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        return _closed_pipe()
     return int(code or 0)
+
+
+def _closed_pipe():
+    """The reader of our output went away (``psrig eval S | head -1``): stop quietly, as a
+    command killed by SIGPIPE would, with its exit status 141."""
+    # what is still buffered for stdout would fail again when Python flushes it at exit
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return 128 + 13
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 [--K FILE] [--force]``."""
 
 from ..errors import InputError
+from .writing import open_session
 
 __all__ = ["register", "parse_circles"]
 
@@ -58,15 +59,13 @@ def _read_K(path):
 def run(args):
     from calibration import calibrate_session
 
-    from ..session import Session
-
     circles = parse_circles(args.circle)
     circle = None if not circles else (circles[0] if len(circles) == 1 else circles)
     if args.outline is not None and (circles or args.sphere_mask):
         raise InputError("--outline: the sphere outlines come from --outline, --circle or --sphere-mask; "
                          "give only one of them")
     K = _read_K(args.K) if args.K else None
-    session = Session.open(args.session)
+    session = open_session(args.session, args)
     result = calibrate_session(session, circle=circle, sphere_mask=args.sphere_mask, K=K,
                                outline=False if args.no_outline else args.outline, force=args.force)
     if result is None:

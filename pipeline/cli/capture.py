@@ -12,6 +12,9 @@ for real rigs.
 
 import os
 import sys
+from pathlib import Path
+
+from .writing import open_session
 
 __all__ = ["register", "run", "FAULTS_ENV"]
 
@@ -56,9 +59,13 @@ def run(args):
         from rig.sim.rig import SimulatedRig
 
         sim = SimulatedRig(rig, faults=os.environ[FAULTS_ENV])
+    from ..session import MANIFEST
+
+    # an existing session is locked before any device is touched (a new one, once it is made)
+    target = open_session(args.session, args) if (Path(args.session) / MANIFEST).is_file() else args.session
     try:
         preview = rig.preview["check"] if args.preview is None else args.preview
-        capture_session(args.session, rig, resume=args.resume, sim=sim, sphere=args.sphere,
+        capture_session(target, rig, resume=args.resume, sim=sim, sphere=args.sphere,
                         on_prompt=_prompt_yes if args.yes else None, preview=preview,
                         max_clipped=args.max_clipped)
     except KeyboardInterrupt as exc:

@@ -3,6 +3,7 @@
 import argparse
 import sys
 
+from .writing import open_session
 
 __all__ = ["register"]
 
@@ -40,9 +41,8 @@ def _gamma(text):
 def run(args):
     """Handler: decode, print a summary, exit 1 when a frame failed."""
     from ..decode import decode_session
-    from ..session import Session
 
-    session = Session.open(args.session)
+    session = open_session(args.session, args)
     before = session.stage("decode")
     record = decode_session(session, method=args.method,
                             channels="grey" if args.grey else "rgb", binning=args.binning,

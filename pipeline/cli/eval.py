@@ -2,6 +2,7 @@
 
 import json
 
+from .writing import open_session
 __all__ = ["register", "format_summary"]
 
 
@@ -22,9 +23,8 @@ def register(subparsers):
 
 def run(args):
     from ..evaluate import evaluate_session
-    from ..session import Session
 
-    session = Session.open(args.session)
+    session = open_session(args.session, args)
     result = evaluate_session(session, max_deg=args.max_deg)
     if args.json:
         print(json.dumps(result, indent=2))

@@ -10,6 +10,7 @@ parser is built, so that ``psrig --help`` stays fast.
 from pathlib import Path
 
 from ..errors import InputError
+from .writing import open_session
 
 __all__ = ["register"]
 
@@ -57,7 +58,6 @@ def register(subparsers):
 
 def run(args):
     from ..integrate import integrate_session, read_intrinsics
-    from ..session import Session
 
     K = read_intrinsics(args.K) if args.K else None
     options = {} if args.k is None else {"k": args.k}
@@ -71,7 +71,7 @@ def run(args):
         return _run_files(args, K, options)
     if not args.session:
         raise InputError("give a SESSION folder, or --normals PNG --mask PNG --out DIR")
-    session = Session.open(args.session)
+    session = open_session(args.session, args)
     result = integrate_session(session, K=K, method=args.method, force=args.force, **options)
     if result is None:
         print(f"integrate: {session.root}: up to date (use --force to rerun)")

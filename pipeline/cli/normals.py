@@ -1,6 +1,7 @@
 """``psrig normals SESSION [--method NAME] [--t-low F] ...``"""
 
 from ..errors import InputError
+from .writing import open_session
 
 
 def register(sub):
@@ -34,14 +35,13 @@ def register(sub):
 
 def run(args):
     from ..photometric import normals_session
-    from ..session import Session
 
     t_low = args.t_low
     if t_low is not None:
         t_low = t_low / 100.0 if t_low > 1 else t_low
         if not 0 < t_low <= 1:
             raise InputError(f"--t-low must be a fraction in (0, 1] or a percentage, got {args.t_low}")
-    session = Session.open(args.session)
+    session = open_session(args.session, args)
     record = normals_session(session, method=args.method, force=args.force, t_low=t_low,
                              lights_model=args.lights_model, near_depth=args.near_depth == "on",
                              specular_anchor={"auto": None, "on": True, "off": False}[args.specular_anchor],

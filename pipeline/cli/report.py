@@ -1,6 +1,8 @@
 """``psrig report SESSION... [--out DIR] [--max-deg F] [--force] [--no-eval]``: each session's
 report/index.html and, for several sessions, a comparison page on the same scales."""
 
+from .writing import open_session
+
 __all__ = ["register"]
 
 
@@ -30,11 +32,10 @@ def register(subparsers):
 def run(args):
     from ..errors import InputError
     from ..report import INDEX, compare_sessions, report_session
-    from ..session import Session
 
     if args.out and len(args.sessions) < 2:
         raise InputError("--out is for a comparison of two sessions or more")
-    sessions = [Session.open(root) for root in args.sessions]  # every folder checked before any work
+    sessions = [open_session(root, args) for root in args.sessions]  # every folder checked before any work
     for session in sessions:
         record = report_session(session, force=args.force, evaluate=not args.no_eval, max_deg=args.max_deg)
         state = "up to date" if record is None else f"written in {record['seconds']:.1f} s"

@@ -67,7 +67,7 @@ def run(args):
                             integrate_method=args.integrate_method, binning=args.binning)
     lines = not (args.quiet or args.json)
     run = dict(options=options, force=args.force, start=args.start, stop=args.stop, jobs=args.jobs,
-               echo=(lambda line: print(line, flush=True)) if lines else None)
+               echo=(lambda line: print(line, flush=True)) if lines else None, wait=args.wait)
     if args.scheduler is not None:  # a batch on Dask, photometric stereo in pixel tiles
         from ..cluster import run_batch, summary_table
 
@@ -125,8 +125,7 @@ def session_summary(outcome):
     shares = {name: round(count / pixels, 6) for name, count in (normals.get("status_counts") or {}).items()} \
         if pixels else {}
     files = {"report": REPORT, "normals": NORMALS, "depth": DEPTH, "mesh_ply": MESH, "mesh_obj": MESH_OBJ}
-    outputs = {key: str(session.path(rel).resolve()) for key, rel in files.items()
-               if session and session.path(rel).is_file()}
+    outputs = {key: path for key, path in ((key, _output(session, rel)) for key, rel in files.items()) if path}
     return {"session": outcome.root, "ok": not outcome.error, "error": outcome.error or None,
             "seconds": round(sum(s.seconds for s in outcome.stages), 3), "stages": stages,
             "status_shares": shares, "warnings": warnings, "outputs": outputs}
@@ -147,3 +146,15 @@ def _details(summary):
         yield f"{root}: normals: status: {shares}"
     for key, path in summary["outputs"].items():
         yield f"{root}: {key}: {path}"
+
+
+def _output(session, rel):
+    """The absolute path of a session file that exists, else None (also for a failed session
+    whose folders the run refused: the summary must not fail where the run did)."""
+    from ..errors import PsrigError
+
+    try:
+        path = session.path(rel) if session else None
+    except PsrigError:
+        return None
+    return str(path.resolve()) if path is not None and path.is_file() else None

@@ -28,6 +28,7 @@ from .exr import ExrBuffer
 from .frame import check_options, decode_frame, is_image_file
 from .raw import decode_raw
 from ..errors import ImageFileError, PsrigError
+from ..lock import lifeline, watch_lifeline
 from ..progress import progress
 
 __all__ = ["run_tasks", "decode_task", "write_saturation", "encode_saturation", "start_pool",
@@ -88,9 +89,12 @@ def _write(path, data, commit=True):
         raise ImageFileError(f"{path}: cannot write ({exc.strerror or exc})") from None
 
 
-def _init_worker():
+def _init_worker(lifeline):
     # Each worker is one of ``jobs`` processes: OpenCV threads on top would oversubscribe.
     cv2.setNumThreads(1)
+    # It works under its parent's session lock: it must not outlive the parent (a SIGKILLed
+    # parent would otherwise leave it, the fork server and the resource tracker running).
+    watch_lifeline(lifeline)
 
 
 def _io_thread():
@@ -130,6 +134,7 @@ def _decode(task):
                                         scratch=_workspace.setdefault("decoder", {}))
         return exr, planes, saturated, info
     linear, saturated, info = decode_frame(source, **options)
+    _check_finite(linear, source)
     if tuple(linear.shape[:2]) != (height, width):
         raise PsrigError(f"decoded to {linear.shape[:2]}, expected {(height, width)} like the "
                          "other frames")
@@ -137,6 +142,16 @@ def _decode(task):
     exr = _exr_buffer(height, width, names)
     exr.fill(linear, names)
     return exr, [exr.planes[name] for name in names], saturated, info
+
+
+def _check_finite(linear, source):
+    """Refuse NaN and infinite values (float image files can hold them; raw integers cannot):
+    photometric stereo would silently lose every pixel they touch."""
+    finite = np.isfinite(linear)
+    if not finite.all():
+        bad = int(finite.size - np.count_nonzero(finite))
+        raise ImageFileError(f"{source}: {bad} value{'s' * (bad != 1)} NaN or infinite; a frame "
+                             "must hold finite linear values")
 
 
 def _exr_buffer(height, width, names):
@@ -221,18 +236,27 @@ def prepare_pool():
 
 
 def start_pool(jobs):
-    """A process pool of up to ``jobs`` decode workers (started as tasks arrive).
+    """A process pool of up to ``jobs`` decode workers (started as tasks arrive), each killed
+    as soon as this process ends (:func:`pipeline.lock.watch_lifeline`).
 
     Use it as a context manager and pass it to :func:`run_tasks` to reuse the same workers
     for several batches (reference frames, then lit frames).
     """
-    return futures.ProcessPoolExecutor(max_workers=jobs, mp_context=_context(),
-                                       initializer=_init_worker)
+    context = _context()
+    return futures.ProcessPoolExecutor(max_workers=jobs, mp_context=context,
+                                       initializer=_init_worker, initargs=(lifeline(context),))
 
 
-def run_tasks(tasks, *, jobs=None, show=True, desc="decode", pool=None):
+def run_tasks(tasks, *, jobs=None, show=True, desc="decode", pool=None, on_done=None):
     """Run :func:`decode_task` over ``tasks``: in ``pool`` when given, else in-process for
     one job and in a new pool for more. Returns once every output is on disk.
+
+    Parameters
+    ----------
+    on_done : callable, optional
+        ``on_done(frame_id, info, error, hashes)``, called in this thread for each frame as soon
+        as its outputs are on disk (or it failed), so the caller can record it before the rest
+        are done.
 
     Returns
     -------
@@ -241,35 +265,65 @@ def run_tasks(tasks, *, jobs=None, show=True, desc="decode", pool=None):
     """
     jobs = min(jobs or os.cpu_count() or 1, len(tasks))
     bar = progress(total=len(tasks), desc=desc, unit="frame", disable=None if show else True)
-    outcomes, commits = {}, {}
+    finished = _Finished(on_done)
     # fsync mostly waits on the disk (GIL released): a few threads keep it busy while the
     # next frames are decoded (in the pool, or here with one job).
     with bar, futures.ThreadPoolExecutor(max_workers=max(jobs, 2),
                                          thread_name_prefix="psrig-commit") as committer:
-        if pool is None and jobs <= 1:
-            try:
-                for task in tasks:
-                    frame_id, *outcome = decode_task(task, commit=False)
-                    outcomes[frame_id] = tuple(outcome)
-                    commits[frame_id] = committer.submit(_commit, outcomes[frame_id][3])
-                    bar.update()
-            finally:
-                release_workspace()  # this is the caller's process: give the memory back
-        else:
-            with (start_pool(jobs) if pool is None else contextlib.nullcontext(pool)) as running:
-                pending = {running.submit(decode_task, task, commit=False): task["id"]
-                           for task in tasks}
-                for future in futures.as_completed(pending):
-                    frame_id = pending[future]
-                    outcomes[frame_id] = _outcome(future)
-                    commits[frame_id] = committer.submit(_commit, outcomes[frame_id][3])
-                    bar.update()
-    results = {}
-    for frame_id, (info, error, hashes, _) in outcomes.items():
-        failure = commits[frame_id].result()
-        error = error or (failure and f"frame {frame_id!r}: {failure}")
-        results[frame_id] = (None, error, {}) if error else (info, None, hashes)
-    return results
+        try:
+            if pool is None and jobs <= 1:
+                _run_here(tasks, finished, committer, bar)
+            else:
+                with (start_pool(jobs) if pool is None else contextlib.nullcontext(pool)) as running:
+                    _run_pooled(running, tasks, finished, committer, bar)
+        finally:
+            # also when interrupted: what is on disk is reported, so that it is recorded
+            finished.drain(wait=True)
+    return finished.results
+
+
+def _run_here(tasks, finished, committer, bar):
+    try:
+        for task in tasks:
+            frame_id, *outcome = decode_task(task, commit=False)
+            finished.add(frame_id, tuple(outcome), committer.submit(_commit, outcome[3]))
+            bar.update()
+    finally:
+        release_workspace()  # this is the caller's process: give the memory back
+
+
+def _run_pooled(running, tasks, finished, committer, bar):
+    pending = {running.submit(decode_task, task, commit=False): task["id"] for task in tasks}
+    try:
+        for future in futures.as_completed(pending):
+            outcome = _outcome(future)
+            finished.add(pending[future], outcome, committer.submit(_commit, outcome[3]))
+            bar.update()
+    except BaseException:
+        for future in pending:  # interrupted: start no further frame
+            future.cancel()
+        raise
+
+
+class _Finished:
+    """Frames decoded whose commits may still run: each is reported (``on_done``) and kept in
+    ``results`` once its commit is over, in the order the frames finished."""
+
+    def __init__(self, on_done):
+        self.on_done, self.waiting, self.results = on_done, [], {}
+
+    def add(self, frame_id, outcome, commit):
+        self.waiting.append((frame_id, outcome, commit))
+        self.drain()
+
+    def drain(self, wait=False):
+        while self.waiting and (wait or self.waiting[0][2].done()):
+            frame_id, (info, error, hashes, _), commit = self.waiting.pop(0)
+            failure = commit.result()
+            error = error or (failure and f"frame {frame_id!r}: {failure}")
+            self.results[frame_id] = (None, error, {}) if error else (info, None, hashes)
+            if self.on_done is not None:
+                self.on_done(frame_id, *self.results[frame_id])
 
 
 def _outcome(future):

@@ -16,6 +16,7 @@ above the white level is saturated, and so is every output pixel whose value it 
 """
 
 import contextlib
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -39,15 +40,53 @@ _KERNEL_GREEN = np.array([[0, 0.25, 0], [0.25, 1.0, 0.25], [0, 0.25, 0]], np.flo
 _RAW_ERRORS = (rawpy.LibRawError, OSError, ValueError)
 
 
+#: Fewest bits a raw file spends per photosite: uncompressed raws spend 8 to 16, lossless JPEG
+#: (DNG, CR2, NEF) at least 1 (its shortest Huffman code). A header claiming more photosites
+#: than the file could hold at this rate lies (a 346 KB file claiming 20000 x 20000).
+MIN_BITS_PER_PHOTOSITE = 0.5
+#: Bytes of memory decoding takes per photosite (mosaic, work arrays, the RGB float32 output
+#: buffer; the postprocess path a little more).
+DECODE_BYTES_PER_PHOTOSITE = 32
+
+
 @contextlib.contextmanager
 def open_raw(path):
-    """Open a raw file with rawpy; LibRaw failures become :class:`ImageFileError` naming it."""
+    """Open a raw file with rawpy; LibRaw failures become :class:`ImageFileError` naming it.
+
+    The size its header claims is checked before anything is decoded: against what the file
+    can hold (:data:`MIN_BITS_PER_PHOTOSITE`) and against half of this machine's memory
+    (:data:`DECODE_BYTES_PER_PHOTOSITE`).
+    """
     try:
         raw = rawpy.imread(str(path))
     except _RAW_ERRORS as exc:
         raise ImageFileError(f"{path}: cannot read raw file ({_reason(exc)})") from None
     with raw:
+        _check_claimed_size(raw.sizes, path)
         yield raw
+
+
+def _check_claimed_size(sizes, path):
+    """ImageFileError when a header's size cannot be true or cannot be decoded here."""
+    photosites = int(sizes.raw_height) * int(sizes.raw_width)
+    size = f"{sizes.raw_width} x {sizes.raw_height}"
+    holds = os.path.getsize(path) * 8 / MIN_BITS_PER_PHOTOSITE
+    if photosites > holds:
+        raise ImageFileError(f"{path}: the header claims {size} photosites, more than the "
+                             f"{os.path.getsize(path)} bytes of the file can hold; a damaged or "
+                             "forged raw file")
+    need, budget = photosites * DECODE_BYTES_PER_PHOTOSITE, _memory() // 2
+    if budget and need > budget:
+        raise ImageFileError(f"{path}: a {size} raw frame needs about {need / 2**30:.1f} GiB to "
+                             f"decode, more than half of this machine's {2 * budget / 2**30:.1f} GiB")
+
+
+def _memory():
+    """Physical memory in bytes (0 when unknown)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 0
 
 
 def _reason(exc):

@@ -21,22 +21,24 @@ back. 12 MP frames, 2 cores, jobs 2 (benchmarks/decode.py, load average about 2)
 
 import contextlib
 import os
-import tempfile
+import shutil
 import time
 from pathlib import Path
 
 import numpy as np
 
 from .frame import check_options, decode_frame, frame_size
-from ..atomic import sweep_temps
 from .pool import prepare_pool, run_tasks, start_pool
 from ..errors import InputError, PsrigError, StageError
 from ..imageio import read_image, read_mask
+from ..paths import DECODE_SCRATCH
 
 __all__ = ["decode_frame", "decode_session", "REFERENCE_KINDS"]
 
 #: Kinds subtracted from lit frames, in order of preference.
 REFERENCE_KINDS = ("ambient", "dark")
+#: An interrupted run loses at most this many manifest saves' worth of decoding (see _Run).
+RECORD_SHARE = 20
 _LIT_KINDS = ("object", "sphere", "target")
 
 
@@ -74,10 +76,14 @@ def _sizes(session, frames, binning, failed):
 
 
 def _reusable(session, previous, params, inputs, frame, reference_ids):
-    """True when the previous run's outputs of ``frame`` are still valid."""
+    """True when the previous run's outputs of ``frame`` are still valid (a previous run that was
+    interrupted included: its record lists the frames it finished)."""
     if not previous or previous.get("params") != params:
         return False
     if previous.get("inputs", {}).get(frame["file"]) != inputs.get(frame["file"]):
+        return False
+    # decoded from this very file (not one another frame's ``file:`` now names)
+    if (previous.get("frames") or {}).get(frame["id"], {}).get("file") != frame["file"]:
         return False
     if frame["kind"] in _LIT_KINDS and _previous_references(previous, frame["kind"]) != reference_ids:
         return False
@@ -97,7 +103,8 @@ def _task(session, frame, options, size, reference=None):
 
 
 def _write_reference(session, frames, kind, folder):
-    """Mean linear image and union saturation of reference frames, saved as .npy in ``folder``."""
+    """Mean linear image and union saturation of reference frames, saved as .npy in ``folder``
+    (in the session's scratch, which the next writer sweeps if this run is killed)."""
     total, saturated = None, None
     for frame in frames:
         linear = read_image(session.linear_path(frame))
@@ -113,15 +120,28 @@ def _write_reference(session, frames, kind, folder):
 
 
 class _Run:
-    """State of one decode run: options, hashes, what succeeded (infos) and what failed."""
+    """State of one decode run: options, hashes, what succeeded (infos) and what failed.
+
+    Each frame is recorded in the stage record (status 'incomplete') soon after its outputs are
+    on disk, so a run interrupted at any moment is resumed by the next one from there: the
+    record is saved after a frame unless the last save was less than :data:`RECORD_SHARE`
+    saves ago (a manifest save costs about 10 ms; 12 MP frames take 0.25 s each), and always
+    when the run is interrupted by Ctrl-C or an error.
+    """
 
     def __init__(self, session, params, inputs, sizes, failed, previous, jobs, show):
         self.session, self.params, self.inputs, self.sizes = session, params, inputs, sizes
         self.failed, self.previous, self.jobs, self.show = failed, previous, jobs, show
+        self.frames = session.frames()
+        self.files = {f["id"]: f["file"] for f in self.frames}
         self.infos = {}
         self.hashes = {}  # {output rel: sha256} of every output of a frame in infos
+        self.subtracted = {}
         self.tasks = []
         self.pool = None
+        self.started = time.perf_counter()
+        self.unrecorded = 0  # frames finished since the stage record was last saved
+        self.saved_at, self.save_cost = 0.0, 0.0
 
     def decode(self, frames, reference=None, reference_ids=None):
         """Decode the frames whose outputs are not reusable; collect infos and failures."""
@@ -144,16 +164,30 @@ class _Run:
         tasks, self.tasks = self.tasks, []
         if not tasks:
             return
-        results = run_tasks(tasks, jobs=self.jobs, show=self.show, pool=self._pool(len(tasks)))
-        for frame_id, (info, error, hashes) in results.items():
-            if error:
-                self.failed[frame_id] = error
-            else:
-                self.infos[frame_id] = info
-                self.hashes.update({self.session.rel(path): digest
-                                    for path, digest in hashes.items()})
-            if error and error.startswith("decoder crashed"):
-                self.close()  # a crashed worker breaks its pool: the next batch gets a new one
+        results = run_tasks(tasks, jobs=self.jobs, show=self.show, pool=self._pool(len(tasks)),
+                            on_done=self.finished)
+        if any(error and error.startswith("decoder crashed") for _, error, _ in results.values()):
+            self.close()  # a crashed worker breaks its pool: the next batch gets a new one
+
+    def finished(self, frame_id, info, error, hashes):
+        """A frame's outputs are on disk (or it failed): keep it, and record it when due."""
+        if error:
+            self.failed[frame_id] = error
+        else:
+            self.infos[frame_id] = {**info, "file": self.files[frame_id]}
+            self.hashes.update({self.session.rel(path): digest for path, digest in hashes.items()})
+        self.unrecorded += 1
+        if time.perf_counter() - self.saved_at >= RECORD_SHARE * self.save_cost:
+            self.record_progress()
+
+    def record_progress(self):
+        """Save the frames finished so far as an 'incomplete' stage record (if any is new)."""
+        if not self.unrecorded:
+            return
+        start = time.perf_counter()
+        _record(self.session, self.frames, self, time.perf_counter() - self.started, status="incomplete")
+        self.saved_at = time.perf_counter()
+        self.save_cost, self.unrecorded = self.saved_at - start, 0
 
     def _pool(self, count):
         """The run's process pool, started on the first batch that needs one and reused for
@@ -227,41 +261,54 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     if pooled and force:
         prepare_pool()  # the fork server boots while the inputs are hashed
     inputs, failed = _verify(session, frames)
+    # what decode reads from the manifest: which file each frame is, its kind (what is
+    # subtracted from it) and an ambient frame's applies_to
+    inputs.update(session.manifest_input("decode", frames, ("id", "kind", "file", "applies_to")))
     if not force and not failed and session.stage_is_current("decode", params, inputs):
         return session.stage("decode")
-    # a run killed between a worker's write and its commit leaves hidden temporaries behind
-    sweep_temps(session.path("linear"))
     if pooled:
         prepare_pool()  # ... or while the headers are read (no-op when already running)
     sizes = _sizes(session, frames, binning, failed)
     run = _Run(session, params, inputs, sizes, failed, None if force else session.stage("decode"),
                jobs, progress)
-    unlit = [f for f in frames if f["kind"] not in _LIT_KINDS and f["id"] not in failed]
-    lit = [f for f in frames if f["kind"] in _LIT_KINDS and f["id"] not in failed]
-    subtracted = {}
-    with tempfile.TemporaryDirectory(prefix="psrig-decode-") as folder, \
-            contextlib.closing(run):
-        run.decode(unlit)
-        for lit_kind in sorted({f["kind"] for f in lit}):
-            group = [f for f in lit if f["kind"] == lit_kind]
-            kind, references = _references(unlit, run.infos, lit_kind)
-            reference_ids = [f["id"] for f in references]
-            reference = None
-            if references and run.needs_work(group, reference_ids):
-                reference = _write_reference(session, references, kind, Path(folder) / lit_kind)
-            run.queue(group, reference, reference_ids)
-            subtracted[lit_kind] = {"kind": kind, "frames": reference_ids}
-        run.decode_queued()
-    return _record(session, frames, run, subtracted, time.perf_counter() - start)
+    run.started = start
+    scratch = session.path(DECODE_SCRATCH)
+    try:
+        with contextlib.closing(run):
+            _decode_all(session, frames, run, scratch)
+    except BaseException:
+        run.record_progress()  # interrupted: the next run starts from what is on disk
+        raise
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return _record(session, frames, run, time.perf_counter() - start)
 
 
-def _record(session, frames, run, subtracted, seconds):
+def _decode_all(session, frames, run, scratch):
+    """The unlit frames, then each lit kind minus its reference (mean ambient or dark frame)."""
+    unlit = [f for f in frames if f["kind"] not in _LIT_KINDS and f["id"] not in run.failed]
+    lit = [f for f in frames if f["kind"] in _LIT_KINDS and f["id"] not in run.failed]
+    run.decode(unlit)
+    for lit_kind in sorted({f["kind"] for f in lit}):
+        group = [f for f in lit if f["kind"] == lit_kind]
+        kind, references = _references(unlit, run.infos, lit_kind)
+        reference_ids = [f["id"] for f in references]
+        reference = None
+        if references and run.needs_work(group, reference_ids):
+            reference = _write_reference(session, references, kind, scratch / lit_kind)
+        run.queue(group, reference, reference_ids)
+        run.subtracted[lit_kind] = {"kind": kind, "frames": reference_ids}
+    run.decode_queued()
+
+
+def _record(session, frames, run, seconds, status=None):
     done = [f for f in frames if f["id"] in run.infos]
     # Hashes come from the workers (computed on the bytes they wrote) or from the previous
     # record (checked by _reusable): no output is read back here.
     outputs = {rel: run.hashes[rel] for f in done
                for rel in (session.rel(session.linear_path(f)), session.rel(session.saturation_path(f)))}
-    status = "ok" if not run.failed else ("partial" if done else "failed")
+    subtracted = run.subtracted
+    status = status or ("ok" if not run.failed else ("partial" if done else "failed"))
     return session.record_stage(
         "decode", run.params, run.inputs, outputs, status=status, seconds=seconds,
         failed={k: run.failed[k] for k in sorted(run.failed)},

@@ -132,7 +132,7 @@ def import_diligent(src, dest):
                          f"{obj.normals_gt.shape[0]} but the images are {size[1]}x{size[0]}")
     source = "DiLiGenT light_directions.txt / light_intensities.txt"
     lights = LightSet(obj.directions, obj.intensities, source=source)
-    session = Session.create(dest, rig={"name": "imported", "source": f"DiLiGenT {obj.name}"})
+    session = Session.create(dest, rig={"name": "imported", "source": f"DiLiGenT {obj.name}"}, writer="import")
     frames = add_frames(session, "object", obj.files)
     write_lights(session, lights, frames)
     write_object_mask(session, obj.mask)
@@ -140,4 +140,5 @@ def import_diligent(src, dest):
     if obj.normals_gt is not None:
         write_truth_normals(session, obj.normals_gt, obj.mask)
     session.save()
+    session.release()  # imported: the caller reads it, or opens it to write
     return session

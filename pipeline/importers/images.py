@@ -80,7 +80,7 @@ def import_images(dest, object_glob, *, sphere_glob=None, mask=None, lights=None
     light_set = _read_light_file(lights, len(objects)) if lights else None
     object_mask = _read_mask_file(mask, size) if mask else None
     dest = check_target(dest)
-    session = Session.create(dest, rig={"name": "imported", "source": "image files"})
+    session = Session.create(dest, rig={"name": "imported", "source": "image files"}, writer="import")
     frames = add_frames(session, "object", objects)
     add_frames(session, "sphere", spheres)
     for path in outlines:
@@ -90,6 +90,7 @@ def import_images(dest, object_glob, *, sphere_glob=None, mask=None, lights=None
     if object_mask is not None:
         write_object_mask(session, object_mask)
     session.save()
+    session.release()  # imported: the caller reads it, or opens it to write
     return session
 
 

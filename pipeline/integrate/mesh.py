@@ -134,6 +134,8 @@ def mesh_normals(points):
 
     NaN where a neighbour is missing.
     """
+    if min(points.shape[:2]) < 2:  # a single row or column: no differences to take
+        return np.full(points.shape, np.nan)
     d_col = np.gradient(points, axis=1)
     d_row = np.gradient(points, axis=0)
     normals = np.cross(d_row, d_col)  # rows go down (-y), columns right (+x): this is +z

@@ -113,7 +113,8 @@ def _inputs(session, frames, mask_rel):
             rels.append(session.rel(path))
     if not session.path(LIGHTS).is_file():
         raise StageError(f"{session.path(LIGHTS)}: normals: no lights (run `psrig calibrate` or import lights)")
-    return session.hash_inputs(rels)
+    # the frame-to-light map is read from the manifest: editing it must rerun the stage too
+    return {**session.hash_inputs(rels), **session.manifest_input(STAGE, frames, ("id", "light"))}
 
 
 def light_model(lights, requested="auto"):

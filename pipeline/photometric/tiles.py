@@ -34,22 +34,23 @@ from threadpoolctl import threadpool_limits
 
 from ..atomic import atomic_path
 from ..errors import InputError, StageError
-from ..paths import LIGHTS
+from ..paths import LIGHTS, TILES_SCRATCH
 from ..session import Session
 from .anchor import first_verdict
 from .engine import CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context, scatter_chunk, \
     solve_chunk
 from .estimate import check_lights, plan_solve, result_from_maps
-from .stage import NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
+from .stage import STAGE, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
 
 __all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
            "tile_context", "SCRATCH", "WHOLE_IMAGE"]
 
-SCRATCH = "normals/.tiles"
+SCRATCH = TILES_SCRATCH
 #: :func:`assemble_normals`' answer when the lights need the specular-peak correction
 #: (:mod:`pipeline.photometric.anchor`): one global scale, applied to every pixel, that only a solve of
 #: the whole image can make; the caller then runs the serial normals stage. :func:`plan_normals`
-#: answers it before any tile for near lights placed at an integrated depth, for the same reason.
+#: answers it before any tile for near lights placed at an integrated depth, for the same reason,
+#: and :func:`assemble_normals` when run again after its scratch was removed without a record.
 WHOLE_IMAGE = "whole-image"
 
 
@@ -190,12 +191,18 @@ def run_tile(plan, tile, hook=None):
     """Solve one tile (an item of ``plan.tiles``); returns the tile file's path (str).
 
     Reads only the tile's rows of the memory-mapped stack. ``hook(plan, tile)``, if given, is
-    called after solving and before writing (tests use it to kill the worker mid-tile).
+    called after solving and before writing (tests use it to kill the worker mid-tile). Returns
+    None, solving nothing, when the plan's scratch is gone (the tiles were assembled already).
     """
     p0, r0, r1, skip, count = tile
     target = plan.scratch(f"tile-{p0:010d}.npz")
     if target.is_file():  # finished by an earlier attempt of this task
         return str(target)
+    if not plan.scratch("mask.npy").is_file():
+        # Dask recomputes a tile whose result was on a worker that died, also after the tail
+        # assembled the tiles and removed their scratch: the tail, run again, finds the normals
+        # it recorded (or solves them whole)
+        return None
     stack = np.load(plan.scratch("stack.npy"), mmap_mode="r")
     valid = np.load(plan.scratch("valid.npy"), mmap_mode="r")
     mask = np.load(plan.scratch("mask.npy"), mmap_mode="r")
@@ -236,9 +243,15 @@ def assemble_normals(plan, tile_paths=None):
     """Scatter the tiles into full maps, write ``normals/``, record the stage; returns the record.
 
     Returns :data:`WHOLE_IMAGE` instead (and writes nothing) when the tiles' specular-peak
-    mismatches call for a correction of the lights.
+    mismatches call for a correction of the lights. Safe to call again (Dask reruns the tail
+    of a worker that died): it returns the record an earlier call made, or WHOLE_IMAGE when the
+    scratch is gone without one.
     """
     session = Session.open(plan.root)
+    if not plan.scratch("mask.npy").is_file():  # an earlier attempt of the tail got this far
+        if session.stage_is_current(STAGE, plan.params, plan.run.inputs):
+            return session.stage(STAGE)
+        return WHOLE_IMAGE
     mask = np.load(plan.scratch("mask.npy"))
     out, mismatch = None, []
     for tile in plan.tiles:

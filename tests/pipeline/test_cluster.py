@@ -170,6 +170,53 @@ def _kill_when_stalled(marker, timeout=60):
         os.kill(int(marker.read_text()), signal.SIGKILL)
 
 
+def test_worker_killed_in_a_sessions_last_task_does_not_fail_it(tmp_path, serial, client, monkeypatch):
+    """The tail assembles the tiles and removes their scratch, then integrates: a worker killed
+    there made Dask recompute the tiles it held (their scratch gone) and the session failed."""
+    _use_client(monkeypatch, client)
+    roots = batch(tmp_path, sizes=(72,))
+    marker = tmp_path / "stalled.pid"
+    pids_before = set(client.run(os.getpid).values())
+    client.run(_stall_integrate_once, str(marker))
+    killer = threading.Thread(target=_kill_when_stalled, args=(marker,), daemon=True)
+    killer.start()
+    try:
+        outcomes = cluster.run_batch(roots, tile_pixels=1, show_progress=False)
+    finally:
+        killer.join(timeout=5)
+        client.run(_unstall)
+    assert int(marker.read_text()) in pids_before, "a worker was killed in the tail"
+    assert [o.error for o in outcomes] == [""]
+    assert [s.name for s in outcomes[0].stages if s.ran][-2:] == ["integrate", "report"]
+    assert_identical(roots, serial[:1])
+    deadline = time.time() + 20  # the nanny restarts the killed worker
+    while len(client.scheduler_info()["workers"]) < 2 and time.time() < deadline:
+        time.sleep(0.2)
+
+
+def _stall_integrate_once(marker):
+    """In each worker: the integrate stage stalls once (until the test kills the worker)."""
+    from pipeline import runner
+
+    original = runner.RUNNERS["integrate"]
+
+    def stalled(session, options, force, jobs):
+        if not Path(marker).exists():
+            Path(marker).with_suffix(".tmp").write_text(str(os.getpid()))
+            os.replace(Path(marker).with_suffix(".tmp"), marker)
+            time.sleep(60)
+        return original(session, options, force, jobs)
+
+    stalled.original = original
+    runner.RUNNERS["integrate"] = stalled
+
+
+def _unstall():
+    from pipeline import runner
+
+    runner.RUNNERS["integrate"] = getattr(runner.RUNNERS["integrate"], "original", runner.RUNNERS["integrate"])
+
+
 def test_tiles_are_whole_chunks_covering_every_object_pixel_once():
     mask = np.random.default_rng(1).random((37, 23)) < 0.6
     mask[5:9] = False

@@ -87,6 +87,7 @@ def test_a_stopped_bracketed_capture_resumes_with_nothing_lost_or_doubled(tmp_pa
     # as if killed between the raw file's rename and the manifest's save: the frame is adopted
     manifest = yaml.safe_load((tmp_path / "s" / "session.yaml").read_text())
     manifest["frames"] = manifest["frames"][:-1]
+    manifest["frame_count"] = len(manifest["frames"])   # as a kill before the save leaves it
     (tmp_path / "s" / "session.yaml").write_text(yaml.safe_dump(manifest, sort_keys=False))
     session = capture_session(tmp_path / "s", rig_config, resume=True, **QUIET)
     frames = session.frames()

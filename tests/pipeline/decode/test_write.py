@@ -163,7 +163,10 @@ def test_rerun_sweeps_temporaries_an_interrupted_run_left(tmp_path):
     for path in stale:
         path.write_bytes(b"half written")
     session.linear_path("object_001").unlink()
-    again = decode_session(session, jobs=1, progress=False)
-    assert again["outputs"] == record["outputs"]
+    # the next writer sweeps them when it takes the session's lock, before anything else
+    writer = Session.open(session.root, writer="decode")
     assert not any(path.exists() for path in stale)
+    assert writer.swept == {"linear": (2, 2 * len(b"half written"))}
+    again = decode_session(writer, jobs=1, progress=False)
+    assert again["outputs"] == record["outputs"]
     assert session.linear_path("object_000").is_file()

@@ -1,10 +1,10 @@
-"""pipeline.hdr.merge_exposures: longest unsaturated exposure, scaled to a reference shutter."""
+"""pipeline.decode.hdr.merge_exposures: longest unsaturated exposure, scaled to a reference shutter."""
 
 import numpy as np
 import pytest
 
 from pipeline.errors import InputError
-from pipeline.hdr import merge_exposures
+from pipeline.decode.hdr import merge_exposures
 
 
 def bracket(radiance, shutters, white=1.0):

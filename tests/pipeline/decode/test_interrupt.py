@@ -1,0 +1,170 @@
+"""Interrupted decodes: Ctrl-C is resumed from the frames already on disk, what a kill leaves
+is swept by the next writer, and a SIGKILLed ``psrig run`` leaves no process behind.
+
+These drive real ``psrig`` processes on sessions of a few dozen 1-megapixel DNGs, big enough to
+be interrupted mid-decode on a loaded machine; waits are generous but bounded.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.dng import write_dng
+from pipeline.session import Session
+
+REPO = Path(__file__).resolve().parents[3]
+FRAMES = 24
+SHAPE = (1024, 1024)
+
+
+def raw_session(root, frames=FRAMES, shape=SHAPE):
+    """A session of one dark frame and ``frames`` object frames (distinct noisy DNGs)."""
+    rng = np.random.default_rng(7)
+    session = Session.create(root)
+    base = rng.integers(600, 9000, size=shape, dtype=np.uint16)
+    session.add_frame("dark", write_dng(np.full(shape, 512, np.uint16)), save=False)
+    for light in range(frames):
+        session.add_frame("object", write_dng(base + np.uint16(light)), light=light, save=False)
+    session.save()
+    return session.root
+
+
+def psrig(*args, **kwargs):
+    return subprocess.Popen([sys.executable, "-m", "pipeline", *map(str, args)], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kwargs)
+
+
+def wait_for(condition, proc, timeout=120, what="condition"):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if proc.poll() is not None:
+            pytest.fail(f"psrig ended (exit {proc.returncode}) before {what}: {proc.communicate()}")
+        if time.monotonic() > deadline:
+            proc.kill()
+            pytest.fail(f"no {what} within {timeout} s")
+        time.sleep(0.01)
+
+
+def decoded(root):
+    """Frame ids whose EXR is in linear/ (renamed into place: complete)."""
+    return {p.stem for p in (Path(root) / "linear").glob("*.exr") if not p.name.startswith(".")}
+
+
+def test_ctrl_c_during_the_first_decode_is_resumed(tmp_path):
+    root = raw_session(tmp_path / "s")
+    proc = psrig("decode", root, "--jobs", "2", start_new_session=True)
+    wait_for(lambda: len(decoded(root)) >= 4, proc, what="4 decoded frames")
+    os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C: the terminal signals the whole process group
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err, err
+    done = decoded(root)
+    record = Session.open(root).stage("decode")
+    assert record["status"] == "incomplete"
+    assert set(record["frames"]) == done, "every frame on disk is recorded"
+    assert len(done) < FRAMES + 1, "the decode was interrupted before the end"
+    stamps = {f: (root / "linear" / f"{f}.exr").stat().st_mtime_ns for f in done}
+    again = psrig("decode", root, "--jobs", "2")
+    out, err = again.communicate(timeout=600)
+    assert again.returncode == 0, err
+    record = Session.open(root).stage("decode")
+    assert record["status"] == "ok" and len(record["frames"]) == FRAMES + 1
+    assert {f: (root / "linear" / f"{f}.exr").stat().st_mtime_ns for f in done} == stamps, \
+        "the frames decoded before Ctrl-C were not decoded again"
+    assert not [p for p in (root / "linear").iterdir() if p.name.startswith(".")]
+
+
+def test_temporaries_a_kill_left_are_swept_by_the_next_command(tmp_path):
+    root = raw_session(tmp_path / "s", frames=3, shape=(64, 64))
+    proc = psrig("run", root, "--to", "decode")
+    assert proc.wait(timeout=300) == 0
+    stale = [root / "linear" / ".object_001.a1b2c3.tmp.exr", root / "normals" / ".normals.x7y8.tmp.exr",
+             root / "depth" / ".depth.q1w2.tmp.exr", root / "report" / "maps" / ".status.k9.tmp.png",
+             root / ".session.abc123.tmp.yaml", root / "normals" / ".tiles" / "stack.npy"]
+    for path in stale:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"x" * 1000)
+    proc = psrig("run", root, "--to", "decode")
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0 and "decode: up to date" in out
+    assert "removed 6 temporary files" in out, out  # said, not done silently
+    assert not any(path.exists() for path in stale)
+    assert not (root / "normals" / ".tiles").exists()
+    assert (root / ".psrig.lock").exists() and Session.open(root).stage("decode")["status"] == "ok"
+
+
+# -- orphans ----------------------------------------------------------------------------------
+
+def _processes():
+    """{pid: (ppid, start time, state)} of every process, from /proc."""
+    table = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()
+        table[int(entry)] = (int(fields[1]), fields[19], fields[0])
+    return table
+
+
+def _descendants(pid):
+    table = _processes()
+    found, frontier = {}, [pid]
+    while frontier:
+        parent = frontier.pop()
+        for child, (ppid, start, _) in table.items():
+            if ppid == parent and child not in found:
+                found[child] = start
+                frontier.append(child)
+    return found
+
+
+def _alive(pids):
+    """Those of {pid: start time} still running (not zombies, not a reused pid)."""
+    table = _processes()
+    return [pid for pid, start in pids.items()
+            if pid in table and table[pid][1] == start and table[pid][2] != "Z"]
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
+@pytest.mark.parametrize("kills, sessions", [(0, 1), (1, 1), (2, 1), (0, 2)])
+def test_sigkill_of_psrig_run_during_decode_leaves_no_process(tmp_path, kills, sessions):
+    """One session: the decode pool; two with --jobs 2: the pool of sessions."""
+    roots = [raw_session(tmp_path / f"s{i}") for i in range(sessions)]
+    root = roots[0]
+    proc = psrig("run", *roots, *(["--jobs", "2"] if sessions > 1 else []))
+    family = {}
+    try:
+        # the fork server, the resource tracker and the decode workers, once they all run
+        def started():
+            family.update(_descendants(proc.pid))
+            return len(family) >= 4 and decoded(root)
+        wait_for(started, proc, what="the decode pool at work")
+        time.sleep(0.05 * kills)  # a little later into the decode each time
+        family.update(_descendants(proc.pid))
+        proc.kill()
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + 20  # "within a few seconds", generous for a loaded machine
+        while _alive(family) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        survivors = _alive(family)
+        assert survivors == [], f"still running after the kill: {survivors} of {sorted(family)}"
+    finally:
+        for pid in _alive(family):  # never leave a process behind, even when failing
+            os.kill(pid, signal.SIGKILL)
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    # and the sessions are resumed from there by the next run
+    again = psrig("run", *roots, "--to", "decode")
+    out, err = again.communicate(timeout=600)
+    assert again.returncode == 0, err
+    assert all(Session.open(r).stage("decode")["status"] == "ok" for r in roots)
