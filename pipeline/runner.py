@@ -53,9 +53,11 @@ class SessionOutcome:
 
 
 def _decode(session, options, force, jobs):
-    from .decode import decode_session
+    from .decode import decode_session, describe_record
 
-    decode_session(session, force=force, jobs=jobs, **options)
+    before = session.stage("decode")
+    record = decode_session(session, force=force, jobs=jobs, **options)
+    return "; ".join(describe_record(record)) if record is not before else ""
 
 
 def _nominal_lights(session):
@@ -145,6 +147,12 @@ def _calibrate_kwargs(params):
     return kwargs
 
 
+def _decode_kwargs(params):
+    from .decode import recorded_kwargs
+
+    return recorded_kwargs(params)
+
+
 def _integrate_kwargs(params):
     kwargs = {"method": params.get("method", "smooth"), **(params.get("options") or {})}
     if params.get("K") is not None:
@@ -153,7 +161,7 @@ def _integrate_kwargs(params):
 
 
 #: stage -> recorded params to keyword options (the report has nothing a user sets)
-_RECORDED = {"decode": dict, "calibrate": _calibrate_kwargs, "normals": dict, "integrate": _integrate_kwargs}
+_RECORDED = {"decode": _decode_kwargs, "calibrate": _calibrate_kwargs, "normals": dict, "integrate": _integrate_kwargs}
 
 
 def run_stage(session, name, options, force, jobs):
