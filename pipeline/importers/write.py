@@ -17,7 +17,7 @@ from ..paths import LIGHTS, LIGHTS_LP, OBJECT_MASK, TRUTH_LIGHTS, TRUTH_MASK, TR
 from ..progress import progress
 
 __all__ = ["check_target", "check_sizes", "add_frames", "write_lights", "write_truth_lights", "write_object_mask",
-           "write_truth_normals"]
+           "write_mask_file", "write_truth_normals"]
 
 
 def check_sizes(files, size=None, reference=None, hint=""):
@@ -70,8 +70,13 @@ def write_truth_lights(session, lights):
 
 def write_object_mask(session, mask):
     """The object mask (``calibration/object_mask.png``), named in the manifest (not saved)."""
-    write_mask(session.path(OBJECT_MASK), mask)
-    session.manifest["lights"]["object_mask"] = OBJECT_MASK
+    write_mask_file(session, OBJECT_MASK, mask, "object_mask")
+
+
+def write_mask_file(session, rel, mask, key):
+    """A mask written at ``rel`` and named in the manifest's ``lights:`` under ``key`` (not saved)."""
+    write_mask(session.path(rel), mask)
+    session.manifest["lights"][key] = rel
 
 
 def write_truth_normals(session, normals, mask):
