@@ -76,6 +76,11 @@ def _nominal_lights(session):
 
 
 def _calibrate(session, options, force, jobs):
+    if options.get("from_session"):   # one sphere session's calibration for this one
+        from calibration import calibrate_session
+
+        calibrate_session(session, force=force, echo=lambda line: None, **options)
+        return f"lights from {options['from_session']}"
     if not session.frames("sphere"):
         if session.path(LIGHTS).is_file() and session.manifest["lights"].get("source") != "nominal":
             return "lights imported, no sphere frames"
@@ -116,9 +121,12 @@ RUNNERS = {"decode": _decode, "calibrate": _calibrate, "normals": _normals,
            "integrate": _integrate, "report": _report}
 
 
-def stage_options(*, method=None, t_low=None, integrate_method=None, binning=None, circle=None):
+def stage_options(*, method=None, t_low=None, integrate_method=None, binning=None, circle=None, gamma=None,
+                  sphere_mask=None, outline=None, from_session=None):
     """Per-stage keyword options from run-level settings (None = the stage's default)."""
-    chosen = {"decode": {"binning": binning}, "calibrate": {"circle": circle},
+    chosen = {"decode": {"binning": binning, "gamma": gamma},
+              "calibrate": {"circle": circle, "sphere_mask": sphere_mask, "outline": outline,
+                            "from_session": from_session},
               "normals": {"method": method, "t_low": t_low},
               "integrate": {"method": integrate_method}, "report": {}}
     return {stage: {k: v for k, v in opts.items() if v is not None} for stage, opts in chosen.items()}
