@@ -212,6 +212,8 @@ def zip_ratio(rows, *, samples=8, sample_bytes=1 << 17, level=ZIP_LEVEL):
 #: 1.4x; a 12 MP raw frame full of sensor noise 1.07x (noise fills every mantissa), for 0.5 s
 #: of CPU that would double its decoding time: docs/decoding.md.
 AUTO_MIN_RATIO = 1.25
+# frames up to this many bytes are compressed whole to decide (the sample would be most of them)
+_WHOLE_BELOW = 4 << 20
 
 
 def encode_exr(exr, compression="auto", half=False):
@@ -232,17 +234,22 @@ def encode_exr(exr, compression="auto", half=False):
         'auto', ``estimated_ratio`` (the sample's).
     """
     height, width = exr.shape
-    written = {}
+    rows = half_rows(exr) if half else exr.rows
+    written, data = {}, None
     if compression == "auto":
-        ratio = zip_ratio(half_rows(exr) if half else exr.rows)
+        if rows.size <= _WHOLE_BELOW:   # small frames: compressing it all costs what a sample does
+            data = zip_exr(rows, width, exr.names, half=half)
+            ratio = rows.size / len(data)
+        else:
+            ratio = zip_ratio(rows)
         written["estimated_ratio"] = round(ratio, 3)
         compression = "zip" if ratio >= AUTO_MIN_RATIO else "none"
-    if half:
-        rows = half_rows(exr)
-        data = zip_exr(rows, width, exr.names, half=True) if compression == "zip" else \
-            _uncompressed_half(rows, width, exr.names)
+    if compression == "zip":
+        data = data or zip_exr(rows, width, exr.names, half=half)
+    elif half:
+        data = _uncompressed_half(rows, width, exr.names)
     else:
-        data = zip_exr(exr.rows, width, exr.names) if compression == "zip" else exr.data
+        data = exr.data
     written.update(compression=compression, pixels="half" if half else "float", bytes=len(data))
     return data, written
 

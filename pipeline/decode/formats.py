@@ -7,6 +7,7 @@ thumbnail or a grey mosaic, so a file it reads as TIFF is offered to LibRaw too,
 only real camera raws; a file OpenImageIO cannot open (RAF, CR3, ...) goes to LibRaw alone.
 """
 
+import os
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -23,22 +24,26 @@ RAW_EXAMPLES = "DNG, CR2, CR3, NEF, ARW, RAF, ORF, RW2, PEF"
 
 @dataclass(frozen=True)
 class FrameFormat:
-    """``kind`` 'image' (OpenImageIO) or 'raw' (LibRaw), and ``name`` (OpenImageIO's format
-    name, such as 'png' or 'targa', or 'raw')."""
+    """``kind`` 'image' (OpenImageIO) or 'raw' (LibRaw), ``name`` (OpenImageIO's format name,
+    such as 'png' or 'targa', or 'raw') and, for images, ``size`` (height, width) and
+    ``channels``."""
 
     kind: str
     name: str
+    size: tuple = None
+    channels: int = None
 
 
 def _oiio_format(path):
-    """OpenImageIO's format name for ``path``, or None when no plugin reads it."""
+    """(format name, (height, width), channels) for ``path``, or None when no plugin reads it."""
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         oiio.geterror()  # clear the pending message: it is not this module's to report
         return None
-    name = inp.format_name()
+    spec = inp.spec()
+    found = inp.format_name(), (spec.height, spec.width), spec.nchannels
     inp.close()
-    return name
+    return found
 
 
 def _is_camera_raw(path):
@@ -65,13 +70,23 @@ def frame_format(path):
     ImageFileError
         Neither OpenImageIO nor LibRaw reads the file; the message lists what they read.
     """
-    name = _oiio_format(path)
-    if name not in (None, "tiff"):
-        return FrameFormat("image", name)
+    try:
+        stat = os.stat(path)
+    except OSError as exc:
+        raise ImageFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    # a decode worker asks twice per frame (its fast path, then the decoder): answered once
+    return _frame_format(str(path), stat.st_mtime_ns, stat.st_size)
+
+
+@lru_cache(maxsize=64)
+def _frame_format(path, mtime_ns, size):
+    found = _oiio_format(path)
+    if found is not None and found[0] != "tiff":
+        return FrameFormat("image", *found)
     if _is_camera_raw(path):
         return FrameFormat("raw", "raw")
-    if name is not None:
-        return FrameFormat("image", name)
+    if found is not None:
+        return FrameFormat("image", *found)
     raise ImageFileError(f"{path}: neither an image nor a camera raw file psrig can decode; "
                          f"{readable_formats()}")
 

@@ -10,7 +10,6 @@ import numpy as np
 
 from ..errors import ImageFileError, InputError
 from ..gamma import parse_gamma
-from ..imageio import image_size
 from .formats import frame_format
 from .image import decode_image
 from .raw import METHODS, bin_rgb, decode_raw, open_raw
@@ -44,8 +43,9 @@ def frame_size(path, binning=1):
     """(height, width) that :func:`decode_frame` will produce, read from the header only."""
     if not Path(path).is_file():
         raise ImageFileError(f"{path}: file is missing")
-    if frame_format(path).kind == "image":
-        height, width, _ = image_size(path)
+    found = frame_format(path)
+    if found.kind == "image":
+        height, width = found.size
     else:
         with open_raw(path) as raw:
             height, width = raw.sizes.height, raw.sizes.width
