@@ -30,7 +30,7 @@ def register(subparsers):
                              "srgb, linear, or an exponent such as 2.2; printed and recorded")
     parser.add_argument("--compression", choices=COMPRESSIONS, default="auto",
                         help="linear/ EXRs: auto (default: lossless ZIP for the frames it shrinks "
-                             "by a quarter or more), zip, none")
+                             "to 1/1.8 or less, such as frames from 8/16-bit files), zip, none")
     parser.add_argument("--half", action="store_true",
                         help="half-float EXRs: half the disk, but lossy (11-bit mantissa)")
     parser.add_argument("--jobs", type=int, default=None, help="worker processes (default: cores)")

@@ -207,11 +207,13 @@ def zip_ratio(rows, *, samples=8, sample_bytes=1 << 17, level=ZIP_LEVEL):
     return raw / max(packed, 1)
 
 
-#: 'auto' compresses a frame when a sample of it shrinks at least this much (ratio). Frames
-#: decoded from 8- and 16-bit files zip 2.2-2.5x (DiLiGenT), the simulated rig's frames about
-#: 1.4x; a 12 MP raw frame full of sensor noise 1.07x (noise fills every mantissa), for 0.5 s
-#: of CPU that would double its decoding time: docs/decoding.md.
-AUTO_MIN_RATIO = 1.25
+#: 'auto' compresses a frame when it (or a sample of it) shrinks at least this much. A ZIP frame
+#: costs about 2-4x the time of an uncompressed one to read back (every later stage reads the
+#: frames), so compression is kept for frames where it halves the disk or more: those decoded
+#: from 8- and 16-bit files (DiLiGenT 2.2-2.5x). The simulated rig's frames shrink 1.4-1.6x and
+#: stay uncompressed (compressed, the demo's reads took 1.5-2.5 s longer), as do raw frames full
+#: of sensor noise (1.07-1.13x, for 0.5 s of CPU a 12 MP frame): docs/decoding.md.
+AUTO_MIN_RATIO = 1.8
 # frames up to this many bytes are compressed whole to decide (the sample would be most of them)
 _WHOLE_BELOW = 4 << 20
 

@@ -18,8 +18,8 @@ __all__ = ["decode_frame", "frame_size", "check_options", "CHANNELS", "BINNINGS"
 
 CHANNELS = ("rgb", "grey")
 BINNINGS = (1, 2)
-#: how linear/ EXRs are written: 'auto' compresses (ZIP) the frames that shrink by a quarter or
-#: more, 'zip' every frame, 'none' none (see :mod:`pipeline.decode.exr`)
+#: how linear/ EXRs are written: 'auto' compresses (ZIP) the frames that shrink 1.8x or more
+#: (:data:`pipeline.decode.exr.AUTO_MIN_RATIO`), 'zip' every frame, 'none' none
 COMPRESSIONS = ("auto", "zip", "none")
 
 

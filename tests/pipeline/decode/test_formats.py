@@ -205,3 +205,10 @@ def test_postprocessed_layouts_are_recorded_and_said(tmp_path, capsys):
     assert record["status"] == "ok" and record["postprocessed"] == {"linear": ["object_000", "object_001"]}
     assert main(["decode", str(session.root), "--force", "--jobs", "1"]) == 0
     assert "2 raw frame(s) from a linear sensor decoded by LibRaw's linear postprocess" in capsys.readouterr().out
+
+
+def test_jpeg_exif_colour_space_is_read(tmp_path):
+    path = tmp_path / "frame.jpg"
+    write_oiio(path, CODES, **{"Exif:ColorSpace": 1})
+    info = decode_frame(path)[2]
+    assert info["format"] == "jpeg" and info["transfer"] == "srgb" and "Exif" in info["transfer_from"]

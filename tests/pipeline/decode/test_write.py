@@ -202,7 +202,7 @@ def test_auto_compression_zips_what_shrinks_and_leaves_noise_alone():
     data, written = encode_exr(smooth)
     assert written["compression"] == "zip" and written["bytes"] == len(data) < smooth.data.size / 2
     data, written = encode_exr(noise)
-    assert written["compression"] == "none" and data is noise.data and written["estimated_ratio"] < 1.25
+    assert written["compression"] == "none" and data is noise.data and written["estimated_ratio"] < 1.8
     _, written = encode_exr(noise, "zip")
     assert written["compression"] == "zip" and "estimated_ratio" not in written
     data, written = encode_exr(noise, "none", half=True)
