@@ -21,8 +21,8 @@ import struct
 import numpy as np
 from isal import isal_zlib
 
-__all__ = ["ExrBuffer", "exr_header", "encode_exr", "zip_exr", "zip_ratio", "half_rows", "ZIP_LEVEL", "ZIP_LINES",
-           "AUTO_MIN_RATIO"]
+__all__ = ["ExrBuffer", "exr_header", "encode_exr", "zip_exr", "zip_sample", "half_rows", "ZIP_LEVEL", "ZIP_LINES",
+           "AUTO_MIN_RATIO", "SAMPLE_BYTES"]
 
 _MAGIC = 20000630
 _HALF, _FLOAT = 1, 2  # OpenEXR pixel types (16- and 32-bit IEEE floats)
@@ -33,6 +33,8 @@ ZIP_LINES = 16
 #: ISA-L deflate level (0-3). On DiLiGenT ball / reading / cat sessions: level 1 2.32 / 2.20 /
 #: 2.44 x, level 2 2.34 / 2.22 / 2.46 x, level 3 2.22 / 2.14 / 2.33 x, all about 270 MB/s.
 ZIP_LEVEL = 2
+#: bytes 'auto' compresses to judge a frame: about 2 ms of ISA-L, whatever the frame's size
+SAMPLE_BYTES = 1 << 19
 
 
 def _attribute(name, kind, value):
@@ -161,7 +163,7 @@ def _zip_block(rows, start, level):
     return packed if len(packed) < raw_size else rows[start:stop].tobytes()
 
 
-def zip_exr(rows, width, names, *, half=False, level=ZIP_LEVEL):
+def zip_exr(rows, width, names, *, half=False, level=ZIP_LEVEL, done=None):
     """The bytes of a ZIP-compressed scanline EXR holding ``rows``.
 
     Parameters
@@ -175,14 +177,18 @@ def zip_exr(rows, width, names, *, half=False, level=ZIP_LEVEL):
         The rows hold half floats.
     level : int
         Deflate level, 0-3.
+    done : dict, optional
+        {first scanline: block bytes} already compressed (by :func:`zip_sample`).
 
     Returns
     -------
     bytes
     """
     height = rows.shape[0]
+    done = done or {}
     header = exr_header(height, width, names, "zip", half)
-    blocks = [_zip_block(rows, start, level) for start in range(0, height, ZIP_LINES)]
+    blocks = [done[start] if start in done else _zip_block(rows, start, level)
+              for start in range(0, height, ZIP_LINES)]
     first = len(header) + 8 * len(blocks)
     sizes = np.array([8 + len(b) for b in blocks], np.uint64)
     offsets = first + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.uint64)
@@ -192,30 +198,38 @@ def zip_exr(rows, width, names, *, half=False, level=ZIP_LEVEL):
     return b"".join(parts)
 
 
-def zip_ratio(rows, *, samples=8, sample_bytes=1 << 17, level=ZIP_LEVEL):
-    """Estimated ZIP compression ratio (uncompressed / compressed) of ``rows`` (H, B) uint8,
-    from up to ``samples`` blocks spread over the image, each cut to ``sample_bytes``: about
-    1 MB deflated whatever the frame's size (4 ms), instead of the whole frame."""
-    height = rows.shape[0]
-    starts = np.unique(np.linspace(0, max(height - ZIP_LINES, 0), samples).astype(int) // ZIP_LINES
-                       * ZIP_LINES)
+def zip_sample(rows, *, budget=SAMPLE_BYTES, level=ZIP_LEVEL):
+    """Estimated ZIP compression ratio (uncompressed / compressed) of ``rows`` (H, B) uint8
+    from about ``budget`` bytes of blocks spread over the image, and the blocks compressed.
+
+    Blocks of up to a quarter of the budget are compressed whole and returned
+    ({first scanline: bytes}) for :func:`zip_exr` to reuse; larger ones (a 12 MP frame's are
+    768 KB) are cut, and only estimate.
+    """
+    height, line = rows.shape
+    block = ZIP_LINES * line
+    count = min(-(-height // ZIP_LINES), max(budget // block, 4))
+    starts = np.unique(np.linspace(0, height - 1, count).astype(int) // ZIP_LINES * ZIP_LINES)
     raw = packed = 0
+    done = {}
     for start in starts:
-        data = _predicted(rows[start:min(start + ZIP_LINES, height)].reshape(-1)[:sample_bytes])
-        raw += data.size
-        packed += len(isal_zlib.compress(data, level))
-    return raw / max(packed, 1)
+        stop = min(start + ZIP_LINES, height)
+        if block * 4 <= budget:
+            done[int(start)] = _zip_block(rows, start, level)
+            raw, packed = raw + (stop - start) * line, packed + len(done[int(start)])
+        else:
+            data = _predicted(rows[start:stop].reshape(-1)[:budget // count])
+            raw, packed = raw + data.size, packed + len(isal_zlib.compress(data, level))
+    return raw / max(packed, 1), done
 
 
-#: 'auto' compresses a frame when it (or a sample of it) shrinks at least this much. A ZIP frame
+#: 'auto' compresses a frame when a sample of it (:func:`zip_sample`) shrinks at least this much. A ZIP frame
 #: costs about 2-4x the time of an uncompressed one to read back (every later stage reads the
 #: frames), so compression is kept for frames where it halves the disk or more: those decoded
 #: from 8- and 16-bit files (DiLiGenT 2.2-2.5x). The simulated rig's frames shrink 1.4-1.6x and
 #: stay uncompressed (compressed, the demo's reads took 1.5-2.5 s longer), as do raw frames full
 #: of sensor noise (1.07-1.13x, for 0.5 s of CPU a 12 MP frame): docs/decoding.md.
 AUTO_MIN_RATIO = 1.8
-# frames up to this many bytes are compressed whole to decide (the sample would be most of them)
-_WHOLE_BELOW = 4 << 20
 
 
 def encode_exr(exr, compression="auto", half=False):
@@ -237,17 +251,13 @@ def encode_exr(exr, compression="auto", half=False):
     """
     height, width = exr.shape
     rows = half_rows(exr) if half else exr.rows
-    written, data = {}, None
+    written, done = {}, None
     if compression == "auto":
-        if rows.size <= _WHOLE_BELOW:   # small frames: compressing it all costs what a sample does
-            data = zip_exr(rows, width, exr.names, half=half)
-            ratio = rows.size / len(data)
-        else:
-            ratio = zip_ratio(rows)
+        ratio, done = zip_sample(rows)
         written["estimated_ratio"] = round(ratio, 3)
         compression = "zip" if ratio >= AUTO_MIN_RATIO else "none"
     if compression == "zip":
-        data = data or zip_exr(rows, width, exr.names, half=half)
+        data = zip_exr(rows, width, exr.names, half=half, done=done)
     elif half:
         data = _uncompressed_half(rows, width, exr.names)
     else:
