@@ -86,14 +86,19 @@ def test_missing_mask_is_named(tmp_path, capsys, missing):
     assert missing in capsys.readouterr().err
 
 
-def test_calibrate_from_another_session_reuses_its_lights_with_its_hash(tmp_path, capsys):
+def _calibrated_and_objects(tmp_path, objects):
+    """A calibrated sphere session 'cal' of 6 lights, and a session 'obj' of ``objects`` frames."""
     scene = sphere_scene(6)
     make_sphere_session(tmp_path / "cal", scene)
     assert main(["calibrate", str(tmp_path / "cal")]) == 0
-    objects = Session.create(tmp_path / "obj")
-    for k in range(6):
-        objects.add_frame("object", scene.render_dng(k), light=k, save=False)
-    objects.save()
+    session = Session.create(tmp_path / "obj")
+    for k in range(objects):
+        session.add_frame("object", scene.render_dng(k), light=k, save=False)
+    session.save()
+
+
+def test_calibrate_from_another_session_reuses_its_lights_with_its_hash(tmp_path, capsys):
+    _calibrated_and_objects(tmp_path, 6)
     assert main(["calibrate", str(tmp_path / "obj"), "--from", str(tmp_path / "cal")]) == 0
     session = Session.open(tmp_path / "obj")
     record = session.stage("calibrate")
@@ -120,13 +125,7 @@ def test_calibrate_from_another_session_reuses_its_lights_with_its_hash(tmp_path
 
 
 def test_calibrate_from_a_session_with_other_lights_is_refused(tmp_path, capsys):
-    scene = sphere_scene(6)
-    make_sphere_session(tmp_path / "cal", scene)
-    assert main(["calibrate", str(tmp_path / "cal")]) == 0
-    objects = Session.create(tmp_path / "obj")
-    for k in range(4):
-        objects.add_frame("object", scene.render_dng(k), light=k, save=False)
-    objects.save()
+    _calibrated_and_objects(tmp_path, 4)
     assert main(["calibrate", str(tmp_path / "obj"), "--from", str(tmp_path / "cal")]) == 1
     assert "6 lights for 4 object frames" in capsys.readouterr().err
     assert Session.open(tmp_path / "obj").stage("calibrate") is None

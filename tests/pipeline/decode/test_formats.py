@@ -212,3 +212,19 @@ def test_jpeg_exif_colour_space_is_read(tmp_path):
     write_oiio(path, CODES, **{"Exif:ColorSpace": 1})
     info = decode_frame(path)[2]
     assert info["format"] == "jpeg" and info["transfer"] == "srgb" and "Exif" in info["transfer_from"]
+
+
+def test_psrig_run_takes_gamma_and_says_what_was_assumed(tmp_path, capsys):
+    session = Session.create(tmp_path / "s")
+    for k in range(2):
+        path = tmp_path / f"f{k}.png"
+        png_with_chunks(path, CODES, [])
+        session.add_frame("object", source=path, light=k)
+    assert main(["run", str(session.root), "--to", "decode"]) == 0
+    out = capsys.readouterr().out
+    assert "decoded as sRGB (assumed: 8-bit file without colour metadata)" in out and "--gamma" in out
+    assert main(["run", str(session.root), "--to", "decode", "--gamma", "linear"]) == 0
+    assert "decoded as linear (--gamma)" in capsys.readouterr().out
+    assert main(["run", str(session.root), "--to", "decode"]) == 0   # the choice is kept
+    assert "decode: up to date" in capsys.readouterr().out
+    assert Session.open(session.root).stage("decode")["params"]["gamma"] == "linear"
