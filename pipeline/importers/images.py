@@ -11,13 +11,13 @@ import glob
 import re
 from pathlib import Path
 
-from ..decode import frame_format, frame_size, readable_formats
+from ..decode import frame_format, readable_formats
 from ..errors import InputError, PsrigError
 from ..imageio import read_mask
 from ..lightsio import flag_behind, lp_name, read_intensities, read_lights
 from ..paths import SPHERE_MASK
 from ..session import Session
-from .write import add_frames, check_target, write_lights, write_mask_file, write_object_mask
+from .write import add_frames, check_sizes, check_target, write_lights, write_mask_file, write_object_mask
 
 __all__ = ["import_images", "expand_glob", "natural_key", "SPHERE_CROP_HINT", "SKIPPED_WORDS", "import_notes"]
 
@@ -87,20 +87,6 @@ def _check_decodable(files):
     if bad:
         names = ", ".join(str(p) for p in bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
         raise InputError(f"{len(bad)} file(s) cannot be decoded: {names}; {readable_formats()}")
-
-
-def _check_sizes(files, size=None, reference=None, hint=""):
-    """Common (height, width) of frame files as decode will produce them; InputError naming
-    the first odd file."""
-    reference = files[0] if reference is None else reference
-    for path in files:
-        shape = frame_size(path)
-        if size is None:
-            size = shape
-        elif shape != tuple(size):
-            raise InputError(f"{path}: image is {shape[1]}x{shape[0]} but {reference} is "
-                             f"{size[1]}x{size[0]}; all frames must have the same size{hint}")
-    return tuple(size)
 
 
 def _unexpected(files, others):
@@ -188,13 +174,13 @@ def import_images(dest, object_glob, *, sphere_glob=None, mask=None, lights=None
         outlines, skipped = expand_glob(outline, "--outline", keep_all=True)
         groups["outline"] = {"pattern": outline, "files": outlines, "skipped": skipped}
     _check_decodable(objects + spheres + outlines)
-    size = _check_sizes(objects)
+    size = check_sizes(objects)
     if spheres:
-        _check_sizes(spheres, size, reference=objects[0], hint=SPHERE_CROP_HINT)
+        check_sizes(spheres, size, reference=objects[0], hint=SPHERE_CROP_HINT)
         if len(spheres) != len(objects):
             raise _count_error("--sphere", sphere_glob, spheres, objects)
     if outlines:
-        _check_sizes(outlines, size, reference=objects[0])
+        check_sizes(outlines, size, reference=objects[0])
     light_set = _light_file(lights, objects, intensities, notes) if lights else None
     if intensities and not lights:
         raise InputError(f"--intensities {intensities}: give the light directions too (--lights FILE)")

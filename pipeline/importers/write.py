@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, SessionError
-from ..imageio import image_size, write_image, write_mask, write_normal_png
+from ..decode import frame_size
+from ..imageio import write_image, write_mask, write_normal_png
 from ..lightsio import write_lights_yaml, write_lp
 from ..paths import LIGHTS, LIGHTS_LP, OBJECT_MASK, TRUTH_LIGHTS, TRUTH_MASK, TRUTH_NORMALS, TRUTH_NORMALS_PNG
 from ..progress import progress
@@ -21,7 +22,7 @@ __all__ = ["check_target", "check_sizes", "add_frames", "write_lights", "write_t
 
 
 def check_sizes(files, size=None, reference=None, hint=""):
-    """Common (height, width) of image files; InputError naming the first odd file.
+    """Common (height, width) of frame files as decoded; InputError naming the first odd file.
 
     ``size`` is the size already established by ``reference`` (a file of another group, e.g.
     the first object frame when checking sphere frames); by default the first of ``files``.
@@ -29,7 +30,7 @@ def check_sizes(files, size=None, reference=None, hint=""):
     """
     reference = files[0] if reference is None else reference
     for path in files:
-        height, width, _ = image_size(path)
+        height, width = frame_size(path)   # as decode will make it: images and camera raws alike
         if size is None:
             size = (height, width)
         elif (height, width) != tuple(size):
