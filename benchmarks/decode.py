@@ -1,4 +1,4 @@
-"""Decode speed on 12-megapixel DNGs (4000 x 3000) against the 0.3 s-per-frame target.
+"""Decode speed and disk on 12-megapixel DNGs (4000 x 3000) against the 0.3 s-per-frame target.
 
 Prints, best of ``--repeat`` (wall and CPU seconds; CPU = time.process_time of this process,
 threads included): decode_frame alone (each path); one pool task (decode into the EXR bytes,
@@ -6,9 +6,12 @@ sha256, write + fsync + rename of EXR and mask) as a worker runs it; and ``decod
 (``--jobs``, default 2; a forced rerun of the same session, so the pool start-up is included
 every time; the first run of the process also boots the fork server, which later runs
 reuse). Session CPU is this process only with the pool: the workers' CPU is another
-process's (see the jobs 1 line for the whole CPU cost of a frame).
+process's (see the jobs 1 line for the whole CPU cost of a frame). Every session line also
+gives the EXR bytes per frame and how the frames were written (``--compression``, default auto:
+ZIP where a sample shrinks by a quarter); ``--compare`` times auto, zip and none in turn in
+this process, so their ratios share the machine's load.
 
-    /work/venv/bin/python benchmarks/decode.py [--frames 4] [--jobs 2] [--repeat 3]
+    python benchmarks/decode.py [--frames 4] [--jobs 2] [--repeat 3] [--compression auto] [--compare]
 """
 
 import argparse
@@ -59,25 +62,27 @@ def frame_timings(folder, repeat):
         task = {"id": "frame", "source": str(path), "linear": str(Path(folder) / "out.exr"),
                 "saturation": str(Path(folder) / "out_sat.png"), "size": linear.shape[:2],
                 "options": {"method": method, "channels": "rgb", "binning": binning,
-                            "gamma": "srgb"}}
+                            "gamma": "auto", "compression": "auto"}}
         task_s, task_cpu, _ = best_of(repeat, lambda: decode_task(task))
         print(f"  pool task (decode + sha256 + atomic EXR and mask): {task_s:.3f} s, "
               f"CPU {task_cpu:.3f} s")
 
 
-def session_timing(folder, frames, jobs, binning, repeat):
-    session = Session.create(Path(folder) / f"session_{jobs}_{binning}")
-    for light in range(frames):
+def session_timing(folder, frames, jobs, binning, repeat, compression="auto"):
+    root = Path(folder) / f"session_{jobs}_{binning}"
+    session = Session.open(root) if root.is_dir() else Session.create(root)
+    for light in range(len(session.frames()), frames):
         session.add_frame("object", write_dng(mosaic(light + 1)), light=light)
     walls = []
     seconds, cpu, record = best_of(repeat, lambda: decode_session(
-        session, jobs=jobs, binning=binning, progress=False, force=True), walls)
+        session, jobs=jobs, binning=binning, progress=False, force=True, compression=compression), walls)
     assert record["status"] == "ok", record["failed"]
-    print(f"decode_session {frames} frames, jobs {jobs}, bin {binning}: {seconds:.2f} s, "
-          f"{frames / seconds:.2f} frames/s, {seconds / frames:.3f} s/frame "
+    written = ", ".join(f"{n} {kind}" for kind, n in sorted(record["compression"].items()))
+    print(f"decode_session {frames} frames, jobs {jobs}, bin {binning}, compression {compression}: "
+          f"{seconds:.2f} s, {frames / seconds:.2f} frames/s, {seconds / frames:.3f} s/frame "
           f"({seconds / frames / TARGET:.2f} x target); CPU of this process "
-          f"{cpu / frames:.3f} s/frame; every run: "
-          + " ".join(f"{wall / frames:.3f}" for wall in walls) + " s/frame")
+          f"{cpu / frames:.3f} s/frame; EXR {record['linear_bytes'] / frames / 1e6:.1f} MB/frame ({written}); "
+          "every run: " + " ".join(f"{wall / frames:.3f}" for wall in walls) + " s/frame")
 
 
 def main():
@@ -85,14 +90,22 @@ def main():
     parser.add_argument("--frames", type=int, default=4)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--compression", default="auto", choices=("auto", "zip", "none"))
+    parser.add_argument("--compare", action="store_true",
+                        help="only the jobs-N session, with auto, zip and none in turn (--repeat rounds)")
     args = parser.parse_args()
     print(f"cores {os.cpu_count()}, load average before {os.getloadavg()[0]:.2f} "
           "(other processes on the machine slow every figure below)")
     with tempfile.TemporaryDirectory(prefix="psrig-bench-decode-") as folder:
+        if args.compare:
+            for _ in range(args.repeat):   # interleaved: each round sees about the same load
+                for compression in ("auto", "zip", "none"):
+                    session_timing(folder, args.frames, args.jobs, 1, 1, compression)
+            return
         frame_timings(folder, args.repeat)
         for binning in (1, 2):
-            session_timing(folder, args.frames, args.jobs, binning, args.repeat)
-        session_timing(folder, args.frames, 1, 1, args.repeat)
+            session_timing(folder, args.frames, args.jobs, binning, args.repeat, args.compression)
+        session_timing(folder, args.frames, 1, 1, args.repeat, args.compression)
     print(f"load average after {os.getloadavg()[0]:.2f}")
 
 

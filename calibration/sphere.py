@@ -19,6 +19,7 @@ from .geometry import check_K, mirror, sphere_centre, sphere_points
 from .highlight import highlight_blob, robust_centre, saturation_level
 from .kinds import sphere_kind
 from .positions import frame_offset, near_decision, triangulate
+from .sanity import check_given_circle, check_highlights_inside, check_mask_disc
 
 __all__ = ["calibrate_lights", "calibrate_sphere", "SphereCalibration", "CalibrationError"]
 
@@ -212,9 +213,15 @@ def _circles(grey, circle, mask, spheres, outline=None):
             raise InputError(f"give the sphere outlines one way only: got outline and {' and '.join(other)}")
         return [(c, None) for c in _outline_circles(outline, grey, spheres)]
     if circle is not None:
-        return [(c, None) for c in _given(circle)]
+        given = _given(circle)
+        for c in given:
+            check_given_circle(grey, c)
+        return [(c, None) for c in given]
     if mask is not None:
-        return [(circle_from_mask(r), r) for r in _mask_regions(mask, grey.shape[1:])]
+        found = [(circle_from_mask(r), r) for r in _mask_regions(mask, grey.shape[1:])]
+        for index, (c, region) in enumerate(found):
+            check_mask_disc(region, c, index)
+        return found
     return [(_on_frames(grey, c), None) for c in find_spheres(sphere_image(grey), spheres)]
 
 
@@ -315,7 +322,8 @@ def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None,
         No sphere, or no chrome sphere among those found.
     InputError
         The outline photo's size differs from the frames', or it comes with ``circle`` or
-        ``mask``.
+        ``mask``; a mask blob is not a disc, the frames contradict a given circle, or a
+        highlight lies outside a given circle or mask (:mod:`calibration.sanity`).
     """
     grey, peak, floor = _grey(images)
     K = check_K(K)
@@ -338,6 +346,11 @@ def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None,
     if not chrome:
         raise SphereNotFound(f"no chrome sphere among the {len(found)} sphere(s) in view: each is shaded "
                              "broadly like a matte target; give the chrome sphere with --circle")
+    if any(c.method in ("given", "mask") for c, _ in chrome):
+        background = np.median(grey, axis=0)
+        for c, region in chrome:
+            if c.method in ("given", "mask"):
+                check_highlights_inside(grey, background, c, region)
     parts = [_one_sphere(grey, peak, sat, c, region, K) for c, region in chrome]
     result = _combine(parts, [c for c, _ in chrome], K)
     result.targets, result.kinds = [c for c, _ in targets], kinds

@@ -20,6 +20,7 @@ from pipeline.paths import LIGHTS, LIGHTS_LP
 from .intensities import target_intensities
 from .overlays import write_overlay, write_sphere_overlays
 from .positions import frame_offset
+from .reuse import reuse_calibration
 from .sphere import calibrate_sphere
 
 __all__ = ["calibrate_session", "OVERLAY", "OVERLAY_OUTLINE"]
@@ -199,8 +200,17 @@ def _overlays(session, images, result, photo=None):
     return rels + names
 
 
+def _session_sphere_mask(session, circle, sphere_mask, outline):
+    """The sphere mask stored at import (session-relative), unless the outlines are given
+    another way."""
+    rel = session.manifest["lights"].get("sphere_mask")
+    if rel and circle is None and sphere_mask is None and not outline:
+        return rel
+    return None
+
+
 def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline=None, force=False,
-                      echo=print):
+                      from_session=None, echo=print):
     """Calibrate the lights of ``session`` from its sphere frames.
 
     Parameters
@@ -222,21 +232,33 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
         has outline frames.
     force : bool
         Recompute even when the stage record is current.
+    from_session : path or None
+        Another session whose calibration (its ``calibration/lights.yaml``) to use instead of
+        this session's sphere frames: one sphere session for many object sessions. Its path and
+        the sha256 of its lights.yaml are recorded, so a recalibrated source reruns this stage.
     echo : callable
         Where messages go.
+
+    A sphere mask stored at import (``calibration/sphere_mask.png``) is used when no circle,
+    mask or outline photo is given; it is then one of the stage's inputs.
 
     Returns
     -------
     SphereCalibration, or None when skipped (up to date, or imported lights and no sphere
     frames).
     """
+    if from_session is not None:
+        if circle is not None or sphere_mask is not None or outline:
+            raise InputError("--from: the lights come from the other session; give no circle, mask or outline")
+        return reuse_calibration(session, from_session, force=force, echo=echo)
     frames = sorted(session.frames("sphere"), key=lambda f: f["light"])
     if not frames:
         if session.path(LIGHTS).is_file():
             echo(f"{session.root}: no sphere frames; keeping the imported {LIGHTS}")
             return None
         raise StageError(f"{session.root}: no sphere frames and no {LIGHTS}")
-    outlines = _session_outlines(session, circle, sphere_mask, outline)
+    stored_mask = _session_sphere_mask(session, circle, sphere_mask, outline)
+    outlines = _session_outlines(session, circle, sphere_mask or stored_mask, outline)
     if outline is False and not session.frames("outline"):
         outline = None   # nothing to decline: the record stays that of a plain calibration
     params = _params(circle, sphere_mask, K, outline, outlines)
@@ -247,6 +269,8 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
                          "decoded); run `psrig decode` first")
     rels = [session.rel(session.linear_path(f)) for f in needed]
     rels += [session.rel(session.saturation_path(f)) for f in frames if session.saturation_path(f).is_file()]
+    if stored_mask:
+        rels.append(stored_mask)
     # which light each frame was shot under, and the object frames' names in lights.lp
     inputs = {**session.hash_inputs(rels), **session.manifest_input(
         "calibrate", needed + session.frames("object"), ("id", "kind", "light", "file", "source"))}
@@ -255,7 +279,8 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
         return None
     start = time.perf_counter()
     images, sats = _load(session, frames)
-    mask = None if sphere_mask is None else read_mask(sphere_mask)
+    mask = read_mask(sphere_mask if stored_mask is None else session.path(stored_mask)) \
+        if sphere_mask is not None or stored_mask else None
     if outlines:
         photo = _mean_outline(session, outlines)
     elif outline:
@@ -267,6 +292,11 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
     intensities, note = _intensities(result, images, sats, K)
     order = [f["light"] for f in frames]
     flags = {order[k]: f"frame {frames[k]['id']}: {why}" for k, why in sorted(result.flags.items())}
+    if len(flags) == len(frames):
+        reasons = sorted({why for why in result.flags.values()})
+        raise StageError(f"{session.root}: none of the {len(frames)} lights could be calibrated on the sphere at "
+                         f"({result.circle.cx:.1f}, {result.circle.cy:.1f}) r {result.circle.r:.1f} "
+                         f"({'; '.join(reasons[:3])}); check the circle or mask, or the sphere frames")
     directions = np.where(np.isfinite(result.directions), result.directions, [0.0, 0.0, 1.0])
     lights = LightSet(directions, intensities, positions=_positions(result), flags=flags,
                       source=f"chrome sphere calibration ({result.method}); {note}",

@@ -1,10 +1,14 @@
-"""A minimal writer of CFA (Bayer) DNG files, readable by LibRaw / rawpy.
+"""A minimal writer of DNG files, readable by LibRaw / rawpy.
 
 The simulated camera and the decoder's tests write raw frames with it, so everything that the
 decoder must honour (CFA order, per-channel black levels, white level) is written explicitly.
-One IFD holds the uncompressed 16-bit mosaic (NewSubfileType 0, PhotometricInterpretation 32803
-= CFA) with the DNG tags LibRaw needs to interpret it.
+One IFD holds the uncompressed 16-bit data with the DNG tags LibRaw needs to interpret it: a
+Bayer or X-Trans mosaic (PhotometricInterpretation 32803 = CFA, :func:`write_dng`), or linear
+values (34892 = LinearRaw, :func:`write_linear_dng`): three per pixel (a demosaiced "linear
+DNG") or one (a monochrome sensor).
 """
+
+import struct
 
 import io
 from fractions import Fraction
@@ -15,7 +19,7 @@ import tifffile
 from .atomic import atomic_write_bytes
 from .errors import InputError
 
-__all__ = ["write_dng", "write_dng_file", "CFA_ORDERS", "MIN_SIZE", "cfa_indices"]
+__all__ = ["write_dng", "write_dng_file", "write_linear_dng", "CFA_ORDERS", "MIN_SIZE", "cfa_indices", "XTRANS"]
 
 #: Bayer orders: the colours of the 2x2 repeat cell, row-major (top-left, top-right, ...).
 CFA_ORDERS = ("RGGB", "BGGR", "GRBG", "GBRG")
@@ -23,6 +27,10 @@ CFA_ORDERS = ("RGGB", "BGGR", "GRBG", "GBRG")
 MIN_SIZE = 22
 _COLOUR_CODE = {"R": 0, "G": 1, "B": 2}  # TIFF/EP CFAPattern codes
 _IDENTITY = ((1, 0, 0), (0, 1, 0), (0, 0, 1))
+#: Fujifilm's X-Trans 6x6 colour filter array (0 R, 1 G, 2 B), row-major: ``cfa=XTRANS``
+XTRANS = ((1, 1, 0, 1, 1, 2), (1, 1, 2, 1, 1, 0), (2, 0, 1, 0, 2, 1),
+          (1, 1, 2, 1, 1, 0), (1, 1, 0, 1, 1, 2), (0, 2, 1, 2, 0, 1))
+_LINEAR_RAW = 34892
 
 # TIFF / DNG tag codes
 _NEW_SUBFILE_TYPE = 254
@@ -87,6 +95,16 @@ def _check_mosaic(mosaic):
     return np.ascontiguousarray(mosaic)
 
 
+def _cfa_tags(cfa):
+    """CFA repeat size and pattern tags of a Bayer order name or a 6x6 pattern (X-Trans)."""
+    if isinstance(cfa, str):
+        return [(_CFA_REPEAT_DIM, 3, 2, (2, 2)), (_CFA_PATTERN, 1, 4, bytes(cfa_indices(cfa).ravel().astype(np.uint8)))]
+    pattern = np.asarray(cfa, np.uint8)
+    if pattern.ndim != 2 or not set(np.unique(pattern)) <= {0, 1, 2}:
+        raise InputError(f"cfa: expected a Bayer order or a 2-D pattern of 0 / 1 / 2, got {cfa!r}")
+    return [(_CFA_REPEAT_DIM, 3, 2, pattern.shape), (_CFA_PATTERN, 1, pattern.size, bytes(pattern.ravel()))]
+
+
 def _dng_tags(cfa, levels, white_level, camera_model, as_shot_neutral, color_matrix):
     matrix = np.asarray(color_matrix, dtype=np.float64).reshape(-1)
     if matrix.size != 9:
@@ -97,22 +115,22 @@ def _dng_tags(cfa, levels, white_level, camera_model, as_shot_neutral, color_mat
     if levels.max() >= white_level:
         raise InputError(f"black_level {list(levels)} must be below white_level {white_level}")
     integral = np.all(levels == np.round(levels))
-    black = (_BLACK_LEVEL, 4, 4, [int(v) for v in levels]) if integral \
-        else (_BLACK_LEVEL, 5, 4, _rationals(levels))
+    if cfa is None:   # LinearRaw: one level per sample of a pixel
+        levels = levels[:1] if np.all(levels == levels[0]) else levels
+    black = (_BLACK_LEVEL, 4, len(levels), [int(v) for v in levels]) if integral \
+        else (_BLACK_LEVEL, 5, len(levels), _rationals(levels))
     model = str(camera_model)
     return [
         (_NEW_SUBFILE_TYPE, 4, 1, 0),
         (_MAKE, 2, None, "psrig"),
         (_MODEL, 2, None, model),
         (_ORIENTATION, 3, 1, 1),
-        (_CFA_REPEAT_DIM, 3, 2, (2, 2)),
-        (_CFA_PATTERN, 1, 4, bytes(cfa_indices(cfa).ravel().astype(np.uint8))),
+        *([] if cfa is None else _cfa_tags(cfa)),
         (_DNG_VERSION, 1, 4, bytes((1, 4, 0, 0))),
         (_DNG_BACKWARD, 1, 4, bytes((1, 1, 0, 0))),
         (_UNIQUE_MODEL, 2, None, model),
-        (_CFA_PLANE_COLOR, 1, 3, bytes((0, 1, 2))),
-        (_CFA_LAYOUT, 3, 1, 1),
-        (_BLACK_REPEAT_DIM, 3, 2, (2, 2)),
+        *([] if cfa is None else [(_CFA_PLANE_COLOR, 1, 3, bytes((0, 1, 2))), (_CFA_LAYOUT, 3, 1, 1)]),
+        (_BLACK_REPEAT_DIM, 3, 2, (2, 2) if cfa is not None else (1, 1)),
         black,
         (_WHITE_LEVEL, 4, 1, int(white_level)),
         (_COLOR_MATRIX1, 10, 9, _rationals(matrix, signed=True)),
@@ -131,8 +149,10 @@ def write_dng(mosaic, *, cfa="RGGB", black_level=512, white_level=16383,
     mosaic : ndarray (H, W) uint16
         Raw photosite values (digital numbers, black level included), row 0 at the top;
         H, W >= :data:`MIN_SIZE`.
-    cfa : str
-        Bayer order of the 2x2 cell at the top-left: 'RGGB', 'BGGR', 'GRBG' or 'GBRG'.
+    cfa : str or 2-D pattern
+        Bayer order of the 2x2 cell at the top-left: 'RGGB', 'BGGR', 'GRBG' or 'GBRG'; or the
+        colours (0 R, 1 G, 2 B) of a larger repeat cell, such as :data:`XTRANS` (then one
+        black level for all photosites).
     black_level : float or sequence of 4 floats
         Black level in DN: one for all photosites or one per cell of the 2x2 CFA cell, in CFA
         order (row-major: top-left, top-right, bottom-left, bottom-right).
@@ -161,6 +181,47 @@ def write_dng(mosaic, *, cfa="RGGB", black_level=512, white_level=16383,
                   software=False, description=None, rowsperstrip=mosaic.shape[0],
                   extratags=tags)
     return buffer.getvalue()
+
+
+def write_linear_dng(pixels, *, black_level=512, white_level=16383, camera_model="psrig linear camera"):
+    """Encode linear raw values as an uncompressed LinearRaw DNG.
+
+    Parameters
+    ----------
+    pixels : ndarray (H, W, 3) or (H, W) uint16
+        Raw values (DN, black level included): three per pixel (a demosaiced linear DNG) or
+        one (a monochrome sensor); H, W >= :data:`MIN_SIZE`.
+    black_level : float
+        Black level, DN, of every sample.
+    white_level : int
+        Saturation level, DN.
+    camera_model : str
+
+    Returns
+    -------
+    bytes
+    """
+    pixels = np.asarray(pixels)
+    grey = pixels.ndim == 2
+    data = _check_mosaic(pixels if grey else pixels[:, :, 0])
+    if not grey:
+        if pixels.ndim != 3 or pixels.shape[2] != 3:
+            raise InputError(f"pixels: expected (H, W, 3) or (H, W), got shape {pixels.shape}")
+        data = np.ascontiguousarray(pixels.astype(np.uint16))
+    levels = _black_levels(black_level)
+    tags = _dng_tags(None, levels, int(white_level), camera_model, (1, 1, 1), _IDENTITY)
+    buffer = io.BytesIO()
+    with tifffile.TiffWriter(buffer, byteorder="<", bigtiff=False) as tif:
+        # tifffile wants 3 samples for LinearRaw: a one-sample file is written as CFA and its
+        # PhotometricInterpretation entry rewritten below
+        tif.write(data, photometric=32803 if grey else _LINEAR_RAW, compression=None, metadata=None,
+                  software=False, description=None, rowsperstrip=data.shape[0], extratags=tags,
+                  planarconfig=None if grey else "contig")
+    encoded = buffer.getvalue()
+    if grey:
+        entry = struct.pack("<HHIHH", 262, 3, 1, 32803, 0)
+        encoded = encoded.replace(entry, struct.pack("<HHIHH", 262, 3, 1, _LINEAR_RAW, 0), 1)
+    return encoded
 
 
 def write_dng_file(path, mosaic, **options):

@@ -114,6 +114,10 @@ def write_image(path, pixels, bits=None, compression=None, channel_names=None):
                               or [f"c{i:02d}" for i in range(channels)])
     if bits == 32 and path.suffix.lower() == ".exr":
         spec.attribute("compression", compression or "zip")
+    elif bits != 32:
+        # no colour-space claim (OpenImageIO 3 marks every PNG sRGB unless told): a 16-bit
+        # linear frame must not declare sRGB to the decoder, which trusts what a file says
+        spec.attribute("oiio:ColorSpace", "data")
     # No write-time stamp: identical pixels give identical bytes, so an unchanged rerun of a
     # stage does not change the hashes that later stages check.
     spec.attribute("DateTime", "")

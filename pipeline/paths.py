@@ -5,7 +5,7 @@ on where it lies. Paths are POSIX-style and relative to the session folder
 (:meth:`pipeline.session.Session.path` resolves and checks them).
 """
 
-__all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP",
+__all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "SPHERE_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP",
            "OBSERVATIONS", "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION",
            "REPORT", "TRUTH_LIGHTS", "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK", "DECODE_SCRATCH",
            "TILES_SCRATCH", "SCRATCH"]
@@ -19,6 +19,8 @@ LIGHTS = "calibration/lights.yaml"
 LIGHTS_LP = "calibration/lights.lp"
 #: an object mask given at import
 OBJECT_MASK = "calibration/object_mask.png"
+#: a sphere mask given at import -> calibrate (instead of finding the spheres)
+SPHERE_MASK = "calibration/sphere_mask.png"
 
 #: normals stage -> integrate, report, eval
 NORMALS = "normals/normals.exr"

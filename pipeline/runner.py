@@ -58,9 +58,11 @@ class SessionOutcome:
 
 
 def _decode(session, options, force, jobs):
-    from .decode import decode_session
+    from .decode import decode_session, describe_record
 
-    decode_session(session, force=force, jobs=jobs, **options)
+    before = session.stage("decode")
+    record = decode_session(session, force=force, jobs=jobs, **options)
+    return "; ".join(describe_record(record)) if record is not before else ""
 
 
 def _nominal_lights(session):
@@ -79,6 +81,11 @@ def _nominal_lights(session):
 
 
 def _calibrate(session, options, force, jobs):
+    if options.get("from_session"):   # one sphere session's calibration for this one
+        from calibration import calibrate_session
+
+        calibrate_session(session, force=force, echo=lambda line: None, **options)
+        return f"lights from {options['from_session']}"
     if not session.frames("sphere"):
         if session.path(LIGHTS).is_file() and session.manifest["lights"].get("source") != "nominal":
             return "lights imported, no sphere frames"
@@ -121,9 +128,12 @@ RUNNERS = {"decode": _decode, "calibrate": _calibrate, "normals": _normals,
            "integrate": _integrate, "report": _report}
 
 
-def stage_options(*, method=None, t_low=None, integrate_method=None, binning=None, circle=None):
+def stage_options(*, method=None, t_low=None, integrate_method=None, binning=None, circle=None, gamma=None,
+                  sphere_mask=None, outline=None, from_session=None):
     """Per-stage keyword options from run-level settings (None = the stage's default)."""
-    chosen = {"decode": {"binning": binning}, "calibrate": {"circle": circle},
+    chosen = {"decode": {"binning": binning, "gamma": gamma},
+              "calibrate": {"circle": circle, "sphere_mask": sphere_mask, "outline": outline,
+                            "from_session": from_session},
               "normals": {"method": method, "t_low": t_low},
               "integrate": {"method": integrate_method}, "report": {}}
     return {stage: {k: v for k, v in opts.items() if v is not None} for stage, opts in chosen.items()}
@@ -152,6 +162,12 @@ def _calibrate_kwargs(params):
     return kwargs
 
 
+def _decode_kwargs(params):
+    from .decode import recorded_kwargs
+
+    return recorded_kwargs(params)
+
+
 def _integrate_kwargs(params):
     kwargs = {"method": params.get("method", "smooth"), **(params.get("options") or {})}
     if params.get("K") is not None:
@@ -160,7 +176,7 @@ def _integrate_kwargs(params):
 
 
 #: stage -> recorded params to keyword options (the report has nothing a user sets)
-_RECORDED = {"decode": dict, "calibrate": _calibrate_kwargs, "normals": dict, "integrate": _integrate_kwargs}
+_RECORDED = {"decode": _decode_kwargs, "calibrate": _calibrate_kwargs, "normals": dict, "integrate": _integrate_kwargs}
 
 
 def run_stage(session, name, options, force, jobs):

@@ -1,5 +1,5 @@
 """``psrig calibrate SESSION [--circle CX,CY,R[;CX,CY,R]] [--sphere-mask FILE] [--outline FILE | --no-outline]
-[--K FILE] [--force]``."""
+[--K FILE] [--force]`` or ``psrig calibrate SESSION --from OTHER_SESSION``."""
 
 from ..errors import InputError
 from .writing import open_session
@@ -38,6 +38,10 @@ def register(subparsers):
     which.add_argument("--no-outline", action="store_true",
                        help="find the sphere outlines on the light frames even when the session has "
                             "outline frames")
+    p.add_argument("--from", dest="from_session", metavar="OTHER_SESSION",
+                   help="use the calibration of another session shot under the same lights (its "
+                        "calibration/lights.yaml) instead of this one's sphere frames; its path and hash are "
+                        "recorded, so psrig run redoes this stage when it is recalibrated")
     p.add_argument("--K", help="text file with the 3x3 intrinsics (perspective view rays)")
     p.add_argument("--force", action="store_true", help="recompute even when up to date")
     p.set_defaults(func=run)
@@ -66,6 +70,12 @@ def run(args):
                          "give only one of them")
     K = _read_K(args.K) if args.K else None
     session = open_session(args.session, args)
+    if args.from_session:
+        if circles or args.sphere_mask or args.outline or args.no_outline or K is not None:
+            raise InputError("--from: the lights come from the other session; give no --circle, --sphere-mask, "
+                             "--outline or --K with it")
+        calibrate_session(session, from_session=args.from_session, force=args.force)
+        return 0
     result = calibrate_session(session, circle=circle, sphere_mask=args.sphere_mask, K=K,
                                outline=False if args.no_outline else args.outline, force=args.force)
     if result is None:

@@ -5,7 +5,11 @@ import sys
 
 from .writing import open_session
 
-__all__ = ["register"]
+#: pipeline.decode.COMPRESSIONS, spelled out so that building the parser imports no numpy (a test
+#: checks they agree)
+COMPRESSIONS = ("auto", "zip", "none")
+
+__all__ = ["register", "COMPRESSIONS"]
 
 
 def register(subparsers):
@@ -22,8 +26,15 @@ def register(subparsers):
     parser.add_argument("--grey", action="store_true", help="one grey channel instead of RGB")
     parser.add_argument("--bin", type=int, choices=(1, 2), default=1, dest="binning",
                         help="2: half size, 2x2 cells averaged without demosaicing")
-    parser.add_argument("--gamma", default="srgb", type=_gamma,
-                        help="encoding of 8-bit JPG/PNG frames: srgb (default) or an exponent")
+    parser.add_argument("--gamma", default="auto", type=_gamma,
+                        help="transfer function of 8- and 16-bit image frames: auto (default: what "
+                             "each file declares, else sRGB for 8-bit and linear for 16-bit), "
+                             "srgb, linear, or an exponent such as 2.2; printed and recorded")
+    parser.add_argument("--compression", choices=COMPRESSIONS, default="auto",
+                        help="linear/ EXRs: auto (default: lossless ZIP for the frames it shrinks "
+                             "to 1/1.8 or less, such as frames from 8/16-bit files), zip, none")
+    parser.add_argument("--half", action="store_true",
+                        help="half-float EXRs: half the disk, but lossy (11-bit mantissa)")
     parser.add_argument("--jobs", type=int, default=None, help="worker processes (default: cores)")
     parser.add_argument("--force", action="store_true", help="decode again even when up to date")
     parser.set_defaults(func=run)
@@ -40,13 +51,14 @@ def _gamma(text):
 
 def run(args):
     """Handler: decode, print a summary, exit 1 when a frame failed."""
-    from ..decode import decode_session
+    from ..decode import decode_session, describe_record
 
     session = open_session(args.session, args)
     before = session.stage("decode")
     record = decode_session(session, method=args.method,
                             channels="grey" if args.grey else "rgb", binning=args.binning,
-                            gamma=args.gamma, jobs=args.jobs, force=args.force)
+                            gamma=args.gamma, compression=args.compression, half=args.half,
+                            jobs=args.jobs, force=args.force)
     done = len(record.get("frames", {}))
     if record is before:
         print(f"decode: up to date ({done} frames)")
@@ -54,6 +66,8 @@ def run(args):
     subtracted = record.get("subtracted", {}).get("kind") or "nothing"
     print(f"decode: {done} frames decoded into {session.root / 'linear'} "
           f"({record.get('seconds', 0):.1f} s, subtracted: {subtracted})")
+    for line in describe_record(record):
+        print(f"decode: {line}")
     for frame_id, reason in record.get("failed", {}).items():
         print(f"psrig decode: error: {reason}", file=sys.stderr)
     return 0 if record["status"] == "ok" else 1

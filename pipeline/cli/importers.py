@@ -2,6 +2,7 @@
 
     psrig import diligent SRC SESSION
     psrig import images SESSION --object GLOB [--sphere GLOB [--outline GLOB]] [--mask FILE] [--lights FILE]
+                        [--intensities FILE] [--sphere-mask FILE] [--keep-all]
 """
 
 __all__ = ["register"]
@@ -23,14 +24,27 @@ def register(subparsers):
                                          "them and sorts the files naturally (img2 before img10); "
                                          "frame i is lit by light i.")
     img.add_argument("session", metavar="SESSION", help="session folder to create")
-    img.add_argument("--object", required=True, metavar="GLOB", help="object frames")
-    img.add_argument("--sphere", metavar="GLOB", help="chrome-sphere frames (same lights)")
-    img.add_argument("--outline", metavar="GLOB",
+    # nargs "+": a pattern the shell expanded arrives as many files, and the handler says to quote it
+    img.add_argument("--object", required=True, metavar="GLOB", nargs="+",
+                     help="object frames: any image OpenImageIO reads or camera raw LibRaw reads")
+    img.add_argument("--sphere", metavar="GLOB", nargs="+", help="chrome-sphere frames (same lights)")
+    img.add_argument("--outline", metavar="GLOB", nargs="+",
                      help="evenly (room-)lit photo(s) of the sphere(s), rig lights off, same camera "
                           "position: calibration finds the sphere outlines on it")
     img.add_argument("--mask", metavar="FILE", help="object mask image (white = object)")
     img.add_argument("--lights", metavar="FILE",
-                     help="light directions: lights.yaml, RTI .lp, or text x y z per line")
+                     help="light directions: lights.yaml, RTI .lp (paired by file name), text with x y z, "
+                          "x y z i or x y z r g b per line, .npy/.npz, .mat, OpenCV FileStorage; "
+                          "FILE:NAME picks one array of a .mat, .npz or OpenCV file")
+    img.add_argument("--intensities", metavar="FILE",
+                     help="per-light intensities, one row of 1 or 3 values per light (e.g. DiLiGenT's "
+                          "light_intensities.txt)")
+    img.add_argument("--sphere-mask", metavar="FILE",
+                     help="mask of the sphere(s) in the sphere frames, one blob per sphere: stored in the "
+                          "session, the calibrate stage uses it instead of finding the spheres")
+    img.add_argument("--keep-all", action="store_true",
+                     help="keep files named like masks or maps (NAME.mask.png, *_normal*, albedo, depth), "
+                          "which the patterns skip by default")
     img.set_defaults(func=_run_images)
 
 
@@ -42,11 +56,28 @@ def _run_diligent(args):
     return 0
 
 
-def _run_images(args):
-    from ..importers import import_images
+def _pattern(option, values):
+    """The one pattern given to ``option``; several values are a pattern the shell expanded."""
+    if values is None or len(values) == 1:
+        return None if values is None else values[0]
+    from ..errors import InputError
 
-    session = import_images(args.session, args.object, sphere_glob=args.sphere, mask=args.mask,
-                            lights=args.lights, outline=args.outline)
+    shown = " ".join(values[:3]) + (" ..." if len(values) > 3 else "")
+    raise InputError(f"{option}: unrecognized arguments {shown} ({len(values)} files): the shell expanded the "
+                     f"pattern; quote it, e.g. {option} 'img*.png', so that psrig expands it (sorting it "
+                     "naturally and skipping masks)")
+
+
+def _run_images(args):
+    from ..importers import import_images, import_notes
+
+    session = import_images(args.session, _pattern("--object", args.object),
+                            sphere_glob=_pattern("--sphere", args.sphere), mask=args.mask,
+                            lights=args.lights, outline=_pattern("--outline", args.outline),
+                            intensities=args.intensities,
+                            sphere_mask=args.sphere_mask, keep_all=args.keep_all)
+    for line in import_notes(session):
+        print(f"import: {line}")
     _print(session)
     return 0
 

@@ -9,6 +9,10 @@ session (:func:`session_summary`) instead of the lines.
 import json
 import os
 import sys
+from pathlib import Path
+
+from ..errors import InputError
+from .calibrate import parse_circles
 
 __all__ = ["register", "session_summary", "STAGES"]
 
@@ -39,6 +43,16 @@ def register(subparsers):
     parser.add_argument("--integrate-method", help="integration method (smooth, bilateral)")
     parser.add_argument("--bin", type=int, choices=(1, 2), dest="binning",
                         help="decode: 2 = half size without demosaicing")
+    parser.add_argument("--gamma", help="decode: transfer function of 8/16-bit image frames (auto, srgb, "
+                                        "linear or an exponent; see psrig decode --help)")
+    calib = parser.add_argument_group("calibrate (as psrig calibrate; kept for later runs)")
+    calib.add_argument("--circle", action="append", help="sphere outline CX,CY,R in pixels (repeat for several)")
+    calib.add_argument("--sphere-mask", metavar="FILE", help="mask of the sphere(s), one blob per sphere")
+    outline = calib.add_mutually_exclusive_group()
+    outline.add_argument("--outline", metavar="FILE", help="evenly lit photo of the sphere(s) to find them on")
+    outline.add_argument("--no-outline", action="store_true", help="find the spheres on the light frames")
+    calib.add_argument("--calibration-from", metavar="OTHER_SESSION",
+                       help="use another session's calibration (psrig calibrate --from)")
     parser.add_argument("--scheduler", nargs="?", const="local", metavar="ADDRESS",
                         help="run on a Dask cluster (psrig[cluster]): the scheduler's address, "
                              "or no address for a local cluster of --jobs workers; photometric "
@@ -55,6 +69,19 @@ def register(subparsers):
     parser.set_defaults(func=run)
 
 
+def _calibration(args):
+    """The calibrate options of ``psrig run`` as stage keywords (None where not given)."""
+    circles = parse_circles(args.circle)
+    if sum(bool(v) for v in (circles, args.sphere_mask, args.outline, args.calibration_from)) > 1:
+        raise InputError("give the sphere outlines one way only: --circle, --sphere-mask, --outline or "
+                         "--calibration-from")
+    return {"circle": None if not circles else (circles[0] if len(circles) == 1 else circles),
+            # absolute: the stage records it, and later runs may start elsewhere
+            "sphere_mask": args.sphere_mask and str(Path(args.sphere_mask).absolute()),
+            "from_session": args.calibration_from and str(Path(args.calibration_from).absolute()),
+            "outline": False if args.no_outline else args.outline}
+
+
 def run(args):
     from ..runner import run_sessions, stage_options
 
@@ -64,7 +91,8 @@ def run(args):
     if args.quiet:
         os.environ["PSRIG_PROGRESS"] = "off"  # an environment variable: worker processes see it too
     options = stage_options(method=args.method, t_low=args.t_low,
-                            integrate_method=args.integrate_method, binning=args.binning)
+                            integrate_method=args.integrate_method, binning=args.binning,
+                            gamma=args.gamma, **_calibration(args))
     lines = not (args.quiet or args.json)
     run = dict(options=options, force=args.force, start=args.start, stop=args.stop, jobs=args.jobs,
                echo=(lambda line: print(line, flush=True)) if lines else None, wait=args.wait)

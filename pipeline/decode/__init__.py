@@ -2,15 +2,21 @@
 
 >>> from pipeline.decode import decode_session, decode_frame
 
-Where things live: :mod:`.frame` (one file, by its kind), :mod:`.raw` (LibRaw through rawpy:
-the mosaic and postprocess paths, registered in :data:`RAW_METHODS`), :mod:`.image` (PNG, TIFF,
-EXR, JPG), :mod:`.exr` (the linear EXR written in one buffer), :mod:`.pool` (worker processes),
-:mod:`.stage` (the ``decode`` stage). Transfer functions are in :mod:`pipeline.gamma`.
+Where things live: :mod:`.formats` (image or raw, by content), :mod:`.frame` (one file),
+:mod:`.raw` (LibRaw through rawpy: the mosaic and postprocess paths, registered in
+:data:`RAW_METHODS`, and the other sensor layouts), :mod:`.image` (anything OpenImageIO reads),
+:mod:`.transfer` (the transfer function a file declares), :mod:`.exr` (the linear EXR built in
+numpy, uncompressed or ZIP), :mod:`.pool` (worker processes), :mod:`.stage` (the ``decode``
+stage), :mod:`.record` (what its record says was assumed). Transfer functions are in
+:mod:`pipeline.gamma`.
 Measurements: docs/decoding.md.
 """
 
-from .frame import check_options, decode_frame, frame_size
+from .formats import FrameFormat, frame_format, readable_formats
+from .frame import COMPRESSIONS, check_options, decode_frame, frame_size
 from .raw import METHODS as RAW_METHODS
+from .record import describe as describe_record, recorded_kwargs
 from .stage import REFERENCE_KINDS, decode_session
 
-__all__ = ["decode_session", "decode_frame", "frame_size", "check_options", "RAW_METHODS", "REFERENCE_KINDS"]
+__all__ = ["decode_session", "decode_frame", "frame_size", "check_options", "RAW_METHODS", "REFERENCE_KINDS",
+           "COMPRESSIONS", "frame_format", "FrameFormat", "readable_formats", "describe_record", "recorded_kwargs"]

@@ -1,71 +1,73 @@
-"""Decoding of one frame file, raw or image, into linear float32 plus a saturation mask."""
+"""Decoding of one frame file, raw or image, into linear float32 plus a saturation mask.
+
+What a file is comes from its content (:func:`pipeline.decode.formats.frame_format`), not its
+suffix: any image OpenImageIO reads, or any camera raw LibRaw reads.
+"""
 
 from pathlib import Path
 
 import numpy as np
 
-from ..gamma import parse_gamma
-from .image import IMAGE_SUFFIXES, decode_image
-from .raw import METHODS, decode_raw, open_raw
 from ..errors import ImageFileError, InputError
-from ..imageio import image_size
+from ..gamma import parse_gamma
+from .formats import frame_format
+from .image import decode_image
+from .raw import METHODS, bin_rgb, decode_raw, open_raw
 
-__all__ = ["decode_frame", "frame_size", "is_image_file", "check_options", "CHANNELS", "BINNINGS"]
+__all__ = ["decode_frame", "frame_size", "check_options", "CHANNELS", "BINNINGS", "COMPRESSIONS"]
 
 CHANNELS = ("rgb", "grey")
 BINNINGS = (1, 2)
+#: how linear/ EXRs are written: 'auto' compresses (ZIP) the frames that shrink 1.8x or more
+#: (:data:`pipeline.decode.exr.AUTO_MIN_RATIO`), 'zip' every frame, 'none' none
+COMPRESSIONS = ("auto", "zip", "none")
 
 
-def is_image_file(path):
-    """True for already-decoded image files (PNG, TIFF, EXR, JPG), False for camera raw."""
-    return Path(path).suffix.lower() in IMAGE_SUFFIXES
-
-
-def check_options(method, channels, binning, gamma):
-    """Validate decoding options; returns them normalised (gamma as 'srgb' or float)."""
+def check_options(method="mosaic", channels="rgb", binning=1, gamma="auto", compression="auto", half=False):
+    """Validate decoding options; returns them normalised as a dict (gamma as 'auto', 'srgb',
+    'linear' or a float)."""
     METHODS[method]  # an unknown name is an error listing the known ones
     if channels not in CHANNELS:
         raise InputError(f"channels: expected one of {', '.join(CHANNELS)}, got {channels!r}")
     if binning not in BINNINGS:
         raise InputError(f"binning: expected 1 or 2, got {binning!r}")
-    return method, channels, int(binning), parse_gamma(gamma)
+    if compression not in COMPRESSIONS:
+        raise InputError(f"compression: expected one of {', '.join(COMPRESSIONS)}, got {compression!r}")
+    if not isinstance(half, bool):
+        raise InputError(f"half: expected true or false, got {half!r}")
+    return {"method": method, "channels": channels, "binning": int(binning), "gamma": parse_gamma(gamma),
+            "compression": compression, "half": half}
 
 
 def frame_size(path, binning=1):
     """(height, width) that :func:`decode_frame` will produce, read from the header only."""
     if not Path(path).is_file():
         raise ImageFileError(f"{path}: file is missing")
-    if is_image_file(path):
-        height, width, _ = image_size(path)
+    found = frame_format(path)
+    if found.kind == "image":
+        height, width = found.size
     else:
         with open_raw(path) as raw:
             height, width = raw.sizes.height, raw.sizes.width
     return (height // 2, width // 2) if binning == 2 else (height, width)
 
 
-def _bin_image(rgb, saturated):
-    """2x2 mean of an RGB image; a bin is saturated when any of its pixels is."""
-    height, width = (rgb.shape[0] // 2) * 2, (rgb.shape[1] // 2) * 2
-    cells = rgb[:height, :width].reshape(height // 2, 2, width // 2, 2, rgb.shape[2])
-    flags = saturated[:height, :width].reshape(height // 2, 2, width // 2, 2)
-    return cells.mean(axis=(1, 3), dtype=np.float32), flags.any(axis=(1, 3))
-
-
-def decode_frame(path, *, method="mosaic", channels="rgb", binning=1, gamma="srgb"):
+def decode_frame(path, *, method="mosaic", channels="rgb", binning=1, gamma="auto"):
     """Decode one frame file into linear values.
 
     Parameters
     ----------
     path : str or Path
-        A camera raw file (anything LibRaw reads) or an image (PNG, TIFF, EXR, JPG).
+        A camera raw file (anything LibRaw reads) or an image (anything OpenImageIO reads).
     method : {'mosaic', 'postprocess'}
-        Raw decoding path (see :mod:`pipeline.decode.raw`); ignored for images.
+        Raw decoding path for Bayer sensors (see :mod:`pipeline.decode.raw`); ignored for
+        images.
     channels : {'rgb', 'grey'}
         Output camera RGB, or grey = the mean of R, G and B.
     binning : {1, 2}
         2: half size, each output pixel the mean of a 2x2 cell (raw: R, (G1+G2)/2, B).
-    gamma : 'srgb' or float
-        Encoding of 8-bit image files.
+    gamma : 'auto', 'srgb', 'linear' or float
+        Transfer function of integer image files (see :func:`pipeline.decode.image.decode_image`).
 
     Returns
     -------
@@ -74,15 +76,16 @@ def decode_frame(path, *, method="mosaic", channels="rgb", binning=1, gamma="srg
     saturated : ndarray (H, W) bool
         True where any channel (any binned photosite) reached the white level.
     info : dict
-        ``raw`` (bool) and, for raw files, ``cfa``, ``black`` (DN, CFA order), ``white`` (DN).
+        ``raw`` (bool); raw files: ``sensor``, ``decoded_by``, ``cfa``, ``black`` (DN),
+        ``white`` (DN); images: ``format``, ``bits``, ``transfer``, ``transfer_from``.
     """
-    method, channels, binning, gamma = check_options(method, channels, binning, gamma)
+    options = check_options(method, channels, binning, gamma)
     if not Path(path).is_file():
         raise ImageFileError(f"{path}: file is missing")
-    if is_image_file(path):
-        rgb, saturated, info = decode_image(path, gamma=gamma)
+    if frame_format(path).kind == "image":
+        rgb, saturated, info = decode_image(path, gamma=options["gamma"])
         if binning == 2:
-            rgb, saturated = _bin_image(rgb, saturated)
+            rgb, saturated = bin_rgb(rgb, saturated)
     else:
         rgb, saturated, info = decode_raw(path, method=method, binning=binning)
     if channels == "grey":

@@ -24,8 +24,9 @@ import cv2
 import numpy as np
 
 from ..atomic import atomic_commit, atomic_write_begin, atomic_write_bytes, discard_temp
-from .exr import ExrBuffer
-from .frame import check_options, decode_frame, is_image_file
+from .exr import ExrBuffer, encode_exr
+from .formats import frame_format
+from .frame import check_options, decode_frame
 from .raw import decode_raw
 from ..errors import ImageFileError, PsrigError
 from ..lock import lifeline, watch_lifeline
@@ -121,19 +122,19 @@ def _subtract(frame_id, planes, saturated, reference):
 
 def _decode(task):
     """Decode a task's frame into an :class:`ExrBuffer`; returns (exr, planes, saturated, info)."""
-    options = dict(zip(("method", "channels", "binning", "gamma"),
-                       check_options(**task["options"])))
+    options = check_options(**task["options"])
     height, width = task["size"]
     source = task["source"]
     if (options["method"], options["channels"], options["binning"]) == ("mosaic", "rgb", 1) \
-            and not is_image_file(source) and os.path.isfile(source):
+            and os.path.isfile(source) and frame_format(source).kind == "raw":
         # The default path: demosaic straight into the file's bytes.
         exr = _exr_buffer(height, width, _RGB)
         planes = [exr.planes[name] for name in _RGB]
         _, saturated, info = decode_raw(source, out=planes,
                                         scratch=_workspace.setdefault("decoder", {}))
         return exr, planes, saturated, info
-    linear, saturated, info = decode_frame(source, **options)
+    linear, saturated, info = decode_frame(source, **{k: options[k] for k in ("method", "channels",
+                                                                              "binning", "gamma")})
     _check_finite(linear, source)
     if tuple(linear.shape[:2]) != (height, width):
         raise PsrigError(f"decoded to {linear.shape[:2]}, expected {(height, width)} like the "
@@ -196,10 +197,11 @@ def decode_task(task, *, commit=True):
         exr, planes, saturated, info = _decode(task)
         if task.get("reference"):
             saturated = _subtract(task["id"], planes, saturated, task["reference"])
-        # Uncompressed: decoded frames (noise in every mantissa) zip by about 4 % at 8x the time.
-        writing = _io_thread().submit(_write, task["linear"], exr.data, commit)
+        data, info["exr"] = encode_exr(exr, task["options"].get("compression", "auto"),
+                                       task["options"].get("half", False))
+        writing = _io_thread().submit(_write, task["linear"], data, commit)
         try:
-            digest = hashlib.sha256(exr.data).hexdigest()
+            digest = hashlib.sha256(data).hexdigest()
             mask = encode_saturation(np.ascontiguousarray(saturated, dtype=bool))
             temps[task["saturation"]] = _write(task["saturation"], mask, commit)
         finally:

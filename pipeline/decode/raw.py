@@ -1,6 +1,6 @@
 """Linear decoding of camera raw files (anything LibRaw reads) with rawpy.
 
-Two paths:
+Two paths for Bayer sensors:
 
 * ``mosaic`` (default): straight from ``raw_image_visible``; the black level of each CFA cell
   is subtracted and the result divided by (white level - that black level), so 1.0 = the white
@@ -10,6 +10,9 @@ Two paths:
 * ``postprocess``: LibRaw's own pipeline with a truly linear recipe (gamma 1, no auto
   brightness, ``adjust_maximum_thr=0``, unit white balance, raw colour space, 16 bit). LibRaw
   clips at black, so dark values are biased upwards.
+
+X-Trans, monochrome and linear (already demosaiced) DNG files take LibRaw's linear postprocess
+whatever the method, with linear interpolation for X-Trans; the frame's info records it.
 
 Saturation is always judged on the raw values, before black subtraction: a photosite at or
 above the white level is saturated, and so is every output pixel whose value it feeds.
@@ -27,7 +30,8 @@ import rawpy
 from ..errors import ImageFileError
 from ..registry import Registry
 
-__all__ = ["open_raw", "raw_layout", "decode_raw", "bilinear_demosaic", "bin2x2", "METHODS", "RawPath"]
+__all__ = ["open_raw", "raw_layout", "decode_raw", "bilinear_demosaic", "bin2x2", "bin_rgb", "METHODS", "RawPath",
+           "OTHER_LAYOUTS"]
 
 #: raw decoding paths by name (``psrig decode --method NAME``), see :class:`RawPath`
 METHODS = Registry("raw decoding method")
@@ -94,31 +98,48 @@ def _reason(exc):
     return text.decode(errors="replace") if isinstance(text, bytes) else str(text)
 
 
+#: sensor layouts that only LibRaw's linear postprocess decodes (the mosaic path is Bayer's)
+OTHER_LAYOUTS = ("x-trans", "linear", "monochrome")
+
+
 def raw_layout(raw, path):
-    """CFA colours and levels of an open raw file.
+    """Sensor layout, colours and levels of an open raw file.
 
     Returns
     -------
     dict
-        ``colours`` (2, 2) int, 0 R / 1 G / 2 B of each cell of the 2x2 Bayer cell;
-        ``cfa`` str such as 'RGGB'; ``black`` (2, 2) float, black level (DN) per cell;
-        ``white`` float, white level (DN).
+        ``sensor``: 'bayer' (a 2x2 RGB colour filter array), 'x-trans' (Fujifilm's 6x6),
+        'linear' (a linear DNG: already demosaiced, 3 values per pixel) or 'monochrome';
+        ``cfa`` str such as 'RGGB' (Bayer), 'X-Trans', 'linear RGB' or 'mono';
+        ``black`` (2, 2) float, black level (DN) per cell of the Bayer cell (other layouts: the
+        per-channel levels); ``white`` float, white level (DN); Bayer also ``colours`` (2, 2)
+        int, 0 R / 1 G / 2 B of each cell.
     """
     pattern = raw.raw_pattern
     desc = raw.color_desc.decode(errors="replace")
-    if pattern is None or pattern.shape != (2, 2) or raw.num_colors < 3:
-        raise ImageFileError(f"{path}: not a 2x2 Bayer sensor (pattern {pattern!r}); "
-                             "only Bayer raw files can be decoded")
+    per_channel = np.asarray(raw.black_level_per_channel, np.float64)
+    white = float(raw.white_level)
+    if raw.raw_type == rawpy.RawType.Stack:
+        return {"sensor": "linear", "cfa": "linear RGB", "black": per_channel.reshape(2, 2), "white": white}
+    if raw.num_colors == 1 or pattern is None or pattern.shape == (1, 1):
+        return {"sensor": "monochrome", "cfa": "mono", "black": per_channel.reshape(2, 2), "white": white}
+    if pattern.shape == (6, 6) and set(desc[int(c)] for c in np.unique(pattern)) == {"R", "G", "B"}:
+        return {"sensor": "x-trans", "cfa": "X-Trans", "black": per_channel.reshape(2, 2), "white": white}
+    if pattern.shape != (2, 2) or raw.num_colors < 3:
+        raise ImageFileError(f"{path}: a colour filter array of {pattern.shape[0]}x{pattern.shape[1]} cells "
+                             f"({raw.num_colors} colours) that psrig cannot decode linearly; it decodes "
+                             "Bayer, X-Trans, monochrome and linear (demosaiced) raw files")
     letters = np.array([desc[int(c)] for c in pattern.ravel()]).reshape(2, 2)
     if set(letters.ravel()) != {"R", "G", "B"}:
-        raise ImageFileError(f"{path}: unsupported colour filter array {desc!r}")
+        raise ImageFileError(f"{path}: unsupported colour filter array {desc!r} (colours other "
+                             "than red, green and blue)")
     colours = np.select([letters == "R", letters == "G"], [0, 1], 2)
-    per_channel = np.asarray(raw.black_level_per_channel, np.float64)
     return {
+        "sensor": "bayer",
         "colours": colours,
         "cfa": "".join(letters.ravel()),
         "black": per_channel[pattern],
-        "white": float(raw.white_level),
+        "white": white,
     }
 
 
@@ -263,6 +284,48 @@ METHODS.register("mosaic", RawPath(_mosaic_path, 1))
 METHODS.register("postprocess", RawPath(_postprocess_path, 2))
 
 
+def bin_rgb(rgb, saturated):
+    """2x2 mean of an RGB image (H, W, C); a bin is saturated when any of its pixels is.
+    An odd last row or column is dropped."""
+    height, width = (rgb.shape[0] // 2) * 2, (rgb.shape[1] // 2) * 2
+    cells = rgb[:height, :width].reshape(height // 2, 2, width // 2, 2, rgb.shape[2])
+    flags = saturated[:height, :width].reshape(height // 2, 2, width // 2, 2)
+    return cells.mean(axis=(1, 3), dtype=np.float32), flags.any(axis=(1, 3))
+
+
+def _other_layout(raw, mosaic, layout, binning):
+    """X-Trans, linear DNG or monochrome: LibRaw's linear postprocess, (H, W, 3) and saturation.
+
+    The recipe is the postprocess path's (gamma 1, no auto brightness, raw colour space, per
+    colour gains that put each colour's white at 1.0), with LibRaw's linear interpolation for
+    X-Trans: linear in the data like the Bayer mosaic path, while LibRaw's default X-Trans
+    demosaic (Markesteijn) is not, and fails on frames under about 600 x 900 photosites.
+    """
+    white = layout["white"]
+    black = layout["black"].ravel()
+    colours = 1 if layout["sensor"] == "monochrome" else 3
+    common = white - black[:colours].min()
+    gains = [common / (white - black[min(c, colours - 1)]) for c in range(3)]
+    rgb16 = raw.postprocess(
+        gamma=(1, 1), no_auto_bright=True, adjust_maximum_thr=0.0, use_camera_wb=False,
+        use_auto_wb=False, user_wb=gains + [gains[1]], output_color=rawpy.ColorSpace.raw,
+        output_bps=16, user_flip=0, bright=1.0, highlight_mode=0,
+        demosaic_algorithm=rawpy.DemosaicAlgorithm.LINEAR)
+    rgb = rgb16.astype(np.float32) * np.float32(1.0 / 65535.0)
+    if rgb.shape[2] == 1:
+        rgb = np.repeat(rgb, 3, axis=2)
+    clipped = mosaic >= white
+    if clipped.ndim == 3:            # linear DNG: (H, W, 4) values per pixel
+        saturated = clipped[:, :, :colours].any(axis=2)
+    elif layout["sensor"] == "x-trans" and clipped.any():   # linear interpolation: 3 x 3
+        saturated = cv2.dilate(clipped.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    else:
+        saturated = clipped
+    height, width = min(rgb.shape[0], saturated.shape[0]), min(rgb.shape[1], saturated.shape[1])
+    rgb, saturated = rgb[:height, :width], saturated[:height, :width]
+    return bin_rgb(rgb, saturated) if binning == 2 else (rgb, saturated)
+
+
 def decode_raw(path, *, method="mosaic", binning=1, out=None, scratch=None):
     """Decode a raw file to linear RGB.
 
@@ -270,11 +333,13 @@ def decode_raw(path, *, method="mosaic", binning=1, out=None, scratch=None):
     ----------
     path : str or Path
     method : {'mosaic', 'postprocess'}
+        For Bayer sensors; X-Trans, monochrome and linear DNG files always take LibRaw's
+        linear postprocess (recorded in ``info``).
     binning : {1, 2}
     out : sequence of 3 ndarray (H, W) float32, optional
-        Mosaic path at full size only: R, G, B planes to demosaic into (e.g. views into an
-        output file's bytes, see :class:`pipeline.decode.exr.ExrBuffer`); (H, W) must be the
-        visible raw size.
+        At full size only: R, G, B planes to decode into (e.g. views into an output file's
+        bytes, see :class:`pipeline.decode.exr.ExrBuffer`): the mosaic path demosaics
+        straight into them, other layouts are copied; (H, W) must be the visible raw size.
     scratch : dict, optional
         Work arrays (mosaic path) kept here and reused by the next call with the same dict,
         e.g. by a worker decoding many frames of one size. Not shared between threads.
@@ -285,28 +350,40 @@ def decode_raw(path, *, method="mosaic", binning=1, out=None, scratch=None):
         Camera RGB, 1.0 = white level minus black; negative values kept on the mosaic path.
     saturated : ndarray (H, W) bool
     info : dict
-        ``cfa``, ``black`` (4 values in CFA order, DN), ``white`` (DN), ``raw`` True.
+        ``raw`` True, ``sensor`` ('bayer', 'x-trans', 'linear', 'monochrome'), ``decoded_by``
+        ('mosaic' or 'postprocess'), ``cfa``, ``black`` (4 values, DN: in CFA order for
+        Bayer, per channel otherwise), ``white`` (DN).
     """
     chosen = METHODS[method]
-    if out is not None and (method, binning) != ("mosaic", 1):
+    if out is not None and binning != 1:
         raise ValueError("decode_raw: out is only for the mosaic path at full size")
     with open_raw(path) as raw:
         try:
             # rawpy reads the data lazily: a truncated file fails on first access, here.
             layout = raw_layout(raw, path)
+            if out is not None and method != "mosaic" and layout["sensor"] == "bayer":
+                raise ValueError("decode_raw: out is only for the mosaic path at full size")
             mosaic = raw.raw_image_visible
-            if out is not None and tuple(mosaic.shape) != tuple(out[0].shape):
-                raise ImageFileError(f"{path}: decoded to {tuple(mosaic.shape)}, expected "
+            if out is not None and tuple(mosaic.shape[:2]) != tuple(out[0].shape):
+                raise ImageFileError(f"{path}: decoded to {tuple(mosaic.shape[:2])}, expected "
                                      f"{tuple(out[0].shape)} like the other frames")
-            # Judged on the raw values, before LibRaw's postprocess touches anything (and
-            # while the file is open: no copy of the mosaic needed).
-            saturated = _saturation(mosaic, layout["white"], binning, chosen.reach)
-            rgb = chosen.decode(raw, mosaic, layout, binning, out, scratch)
+            if layout["sensor"] != "bayer":
+                rgb, saturated = _other_layout(raw, mosaic, layout, binning)
+                decoded_by = "postprocess"
+            else:
+                # Judged on the raw values, before LibRaw's postprocess touches anything (and
+                # while the file is open: no copy of the mosaic needed).
+                saturated = _saturation(mosaic, layout["white"], binning, chosen.reach)
+                rgb = chosen.decode(raw, mosaic, layout, binning, out, scratch)
+                decoded_by = method
         except _RAW_ERRORS as exc:
             raise ImageFileError(f"{path}: cannot decode raw data ({_reason(exc)})") from None
-    info = {"raw": True, "cfa": layout["cfa"], "black": layout["black"].ravel().tolist(),
-            "white": layout["white"]}
+    info = {"raw": True, "sensor": layout["sensor"], "decoded_by": decoded_by, "cfa": layout["cfa"],
+            "black": layout["black"].ravel().tolist(), "white": layout["white"]}
     if out is not None:
+        if rgb is not out:
+            for channel, plane in enumerate(out):
+                plane[...] = rgb[:, :, channel]
         return out, saturated, info
     height, width = min(rgb.shape[0], saturated.shape[0]), min(rgb.shape[1], saturated.shape[1])
     return rgb[:height, :width], saturated[:height, :width], info

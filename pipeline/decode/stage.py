@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .record import assumed
 from .frame import check_options, decode_frame, frame_size
 from .pool import prepare_pool, run_tasks, start_pool
 from ..errors import InputError, PsrigError, StageError
@@ -226,8 +227,8 @@ def _previous_references(previous, lit_kind):
     return subtracted.get("by_kind", {}).get(lit_kind, subtracted).get("frames")
 
 
-def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma="srgb",
-                   jobs=None, force=False, progress=True):
+def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma="auto",
+                   compression="auto", half=False, jobs=None, force=False, progress=True):
     """Decode every frame of a session into ``linear/``.
 
     Parameters
@@ -235,6 +236,10 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     session : Session
     method, channels, binning, gamma
         As for :func:`decode_frame`; recorded as the stage's params.
+    compression : {'auto', 'zip', 'none'}
+        How ``linear/`` EXRs are written (:func:`pipeline.decode.exr.encode_exr`).
+    half : bool
+        Half-float EXRs (lossy) instead of float32.
     jobs : int, optional
         Worker processes (default: one per core; 1 decodes in this process).
     force : bool
@@ -247,13 +252,15 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     dict
         The stage record: status 'ok', 'partial' (``failed`` = {frame id: reason}) or
         'failed'; ``subtracted`` (kind and frame ids), ``frames_not_raw``, per-frame ``frames``
-        info, ``seconds``.
+        info, ``seconds``, and what was assumed: ``transfer`` ({transfer and why: frame ids} of
+        image files), ``postprocessed`` ({sensor: frame ids} of raw files the mosaic path
+        cannot decode), ``linear_bytes`` and ``compression`` ({'zip' or 'none': count}).
     """
     start = time.perf_counter()
-    method, channels, binning, gamma = check_options(method, channels, binning, gamma)
+    params = check_options(method, channels, binning, gamma, compression, half)
     if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
         raise InputError(f"jobs: expected a number of processes >= 1, got {jobs!r}")
-    params = {"method": method, "channels": channels, "binning": binning, "gamma": gamma}
+    binning = params["binning"]
     frames = session.frames()
     if not frames:
         raise StageError(f"{session.root}: the session has no frames to decode")
@@ -313,6 +320,7 @@ def _record(session, frames, run, seconds, status=None):
         "decode", run.params, run.inputs, outputs, status=status, seconds=seconds,
         failed={k: run.failed[k] for k in sorted(run.failed)},
         frames_not_raw=[f["id"] for f in done if not run.infos[f["id"]].get("raw", True)],
+        **assumed({f["id"]: run.infos[f["id"]] for f in done}),
         # top level: what the object frames got (earlier records' form); by_kind: every lit kind
         subtracted={**subtracted.get("object", {"kind": None, "frames": []}), "by_kind": subtracted},
         frames={f["id"]: run.infos[f["id"]] for f in done})

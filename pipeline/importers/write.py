@@ -11,17 +11,18 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, SessionError
-from ..imageio import image_size, write_image, write_mask, write_normal_png
+from ..decode import frame_size
+from ..imageio import write_image, write_mask, write_normal_png
 from ..lightsio import write_lights_yaml, write_lp
 from ..paths import LIGHTS, LIGHTS_LP, OBJECT_MASK, TRUTH_LIGHTS, TRUTH_MASK, TRUTH_NORMALS, TRUTH_NORMALS_PNG
 from ..progress import progress
 
 __all__ = ["check_target", "check_sizes", "add_frames", "write_lights", "write_truth_lights", "write_object_mask",
-           "write_truth_normals"]
+           "write_mask_file", "write_truth_normals"]
 
 
 def check_sizes(files, size=None, reference=None, hint=""):
-    """Common (height, width) of image files; InputError naming the first odd file.
+    """Common (height, width) of frame files as decoded; InputError naming the first odd file.
 
     ``size`` is the size already established by ``reference`` (a file of another group, e.g.
     the first object frame when checking sphere frames); by default the first of ``files``.
@@ -29,7 +30,7 @@ def check_sizes(files, size=None, reference=None, hint=""):
     """
     reference = files[0] if reference is None else reference
     for path in files:
-        height, width, _ = image_size(path)
+        height, width = frame_size(path)   # as decode will make it: images and camera raws alike
         if size is None:
             size = (height, width)
         elif (height, width) != tuple(size):
@@ -70,8 +71,13 @@ def write_truth_lights(session, lights):
 
 def write_object_mask(session, mask):
     """The object mask (``calibration/object_mask.png``), named in the manifest (not saved)."""
-    write_mask(session.path(OBJECT_MASK), mask)
-    session.manifest["lights"]["object_mask"] = OBJECT_MASK
+    write_mask_file(session, OBJECT_MASK, mask, "object_mask")
+
+
+def write_mask_file(session, rel, mask, key):
+    """A mask written at ``rel`` and named in the manifest's ``lights:`` under ``key`` (not saved)."""
+    write_mask(session.path(rel), mask)
+    session.manifest["lights"][key] = rel
 
 
 def write_truth_normals(session, normals, mask):

@@ -84,3 +84,89 @@ def test_missing_mask_is_named(tmp_path, capsys, missing):
     make_sphere_session(tmp_path / "s", sphere_scene(3))
     assert main(["calibrate", str(tmp_path / "s"), "--sphere-mask", str(tmp_path / missing)]) == 1
     assert missing in capsys.readouterr().err
+
+
+def _calibrated_and_objects(tmp_path, objects):
+    """A calibrated sphere session 'cal' of 6 lights, and a session 'obj' of ``objects`` frames."""
+    scene = sphere_scene(6)
+    make_sphere_session(tmp_path / "cal", scene)
+    assert main(["calibrate", str(tmp_path / "cal")]) == 0
+    session = Session.create(tmp_path / "obj")
+    for k in range(objects):
+        session.add_frame("object", scene.render_dng(k), light=k, save=False)
+    session.save()
+
+
+def test_calibrate_from_another_session_reuses_its_lights_with_its_hash(tmp_path, capsys):
+    _calibrated_and_objects(tmp_path, 6)
+    assert main(["calibrate", str(tmp_path / "obj"), "--from", str(tmp_path / "cal")]) == 0
+    session = Session.open(tmp_path / "obj")
+    record = session.stage("calibrate")
+    source = (tmp_path / "cal" / "calibration" / "lights.yaml")
+    from pipeline.session import file_sha256
+
+    assert record["params"]["from_session_sha256"] == file_sha256(source)
+    assert _yaml(session)["directions"] == _yaml(Session.open(tmp_path / "cal"))["directions"]
+    assert "calibration of session" in _yaml(session)["source"]
+    # psrig run keeps the choice: up to date, then redone when the source is recalibrated
+    from pipeline.runner import run_stage
+
+    assert not run_stage(session, "calibrate", {}, False, 1).ran
+    assert main(["calibrate", str(tmp_path / "cal"), "--circle", "1,1,1", "--force"]) == 1   # no light on it
+    assert "none of the 6 lights could be calibrated" in capsys.readouterr().err
+    assert main(["calibrate", str(tmp_path / "cal"), "--no-outline", "--force"]) == 0
+    data = yaml.safe_load(source.read_text())
+    data["source"] += " (edited)"
+    source.write_text(yaml.safe_dump(data, sort_keys=False))
+    assert run_stage(session, "calibrate", {}, False, 1).ran
+    capsys.readouterr()
+    assert main(["calibrate", str(tmp_path / "obj"), "--from", str(tmp_path / "nowhere")]) == 1
+    assert "nowhere" in capsys.readouterr().err
+
+
+def test_calibrate_from_a_session_with_other_lights_is_refused(tmp_path, capsys):
+    _calibrated_and_objects(tmp_path, 4)
+    assert main(["calibrate", str(tmp_path / "obj"), "--from", str(tmp_path / "cal")]) == 1
+    assert "6 lights for 4 object frames" in capsys.readouterr().err
+    assert Session.open(tmp_path / "obj").stage("calibrate") is None
+
+
+def _sphere_mask(path, scene):
+    yy, xx = np.mgrid[0:240, 0:320]
+    mask = np.zeros((240, 320), bool)
+    for cx, cy, r in scene.circles:
+        mask |= np.hypot(xx - cx, yy - cy) <= r
+    from pipeline.imageio import write_mask
+
+    write_mask(path, mask)
+    return mask
+
+
+def test_psrig_run_takes_the_calibration_options_and_keeps_them(tmp_path, capsys):
+    scene = sphere_scene(6)
+    make_sphere_session(tmp_path / "s", scene)
+    _sphere_mask(tmp_path / "spheres.png", scene)
+    code = main(["run", str(tmp_path / "s"), "--to", "calibrate", "--sphere-mask", str(tmp_path / "spheres.png")])
+    assert code == 0, capsys.readouterr().err
+    record = Session.open(tmp_path / "s").stage("calibrate")
+    assert record["params"]["sphere_mask"] == str((tmp_path / "spheres.png").absolute())
+    assert {s["method"] for s in _yaml(Session.open(tmp_path / "s"))["spheres"]} == {"mask"}
+    assert main(["run", str(tmp_path / "s"), "--to", "calibrate"]) == 0
+    assert "calibrate: up to date" in capsys.readouterr().out
+    assert main(["run", str(tmp_path / "s"), "--circle", "1,2,3", "--sphere-mask", "m.png"]) == 1
+    assert "one way only" in capsys.readouterr().err
+
+
+def test_a_sphere_mask_given_at_import_is_used_by_calibrate(tmp_path):
+    from pipeline.importers import import_images
+
+    scene = sphere_scene(6)
+    source = make_sphere_session(tmp_path / "src", scene)
+    files = sorted(source.path(f["file"]) for f in source.frames("sphere"))
+    _sphere_mask(tmp_path / "spheres.png", scene)
+    session = import_images(tmp_path / "s", str(files[0].parent / "*.dng"), sphere_glob=str(files[0].parent / "*.dng"),
+                            sphere_mask=tmp_path / "spheres.png")
+    assert main(["run", str(session.root), "--to", "calibrate"]) == 0
+    session = Session.open(session.root)
+    assert "calibration/sphere_mask.png" in session.stage("calibrate")["inputs"]
+    assert {s["method"] for s in _yaml(session)["spheres"]} == {"mask"}

@@ -25,3 +25,10 @@ def test_the_run_command_spells_the_stages_as_the_session_does():
     from pipeline.session import STAGES as SESSION_STAGES
 
     assert STAGES == SESSION_STAGES
+
+
+def test_the_decode_command_spells_the_compressions_as_decoding_does():
+    from pipeline.cli.decode import COMPRESSIONS
+    from pipeline.decode import COMPRESSIONS as DECODE_COMPRESSIONS
+
+    assert COMPRESSIONS == DECODE_COMPRESSIONS

@@ -150,7 +150,8 @@ def test_session_writes_contract_outputs(tmp_path):
     session = lit_session(tmp_path)
     record = decode_session(session, jobs=1, progress=False)
     assert record["status"] == "ok" and record["failed"] == {}
-    assert record["params"] == {"method": "mosaic", "channels": "rgb", "binning": 1, "gamma": "srgb"}
+    assert record["params"] == {"method": "mosaic", "channels": "rgb", "binning": 1, "gamma": "auto",
+                                "compression": "auto", "half": False}
     for frame in session.frames():
         linear = read_image(session.linear_path(frame))
         assert linear.shape == (32, 48, 3)

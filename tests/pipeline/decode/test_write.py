@@ -170,3 +170,84 @@ def test_rerun_sweeps_temporaries_an_interrupted_run_left(tmp_path):
     again = decode_session(writer, jobs=1, progress=False)
     assert again["outputs"] == record["outputs"]
     assert session.linear_path("object_000").is_file()
+
+
+def _filled(shape, names, rng, compressible):
+    exr = ExrBuffer(*shape, names)
+    pixels = rng.normal(size=shape + (len(names),)).astype(np.float32)
+    if compressible:
+        pixels = np.round(pixels * 4) / 4   # few distinct values, as decoded 8/16-bit files have
+    exr.fill(pixels, names)
+    return exr, pixels
+
+
+@pytest.mark.parametrize("shape, names", [((37, 23), ("R", "G", "B")), ((16, 5), ("Y",)), ((1, 1), ("R", "G", "B"))])
+def test_zip_exr_reads_back_bit_for_bit_in_openimageio(tmp_path, shape, names):
+    from pipeline.decode.exr import half_rows, zip_exr
+
+    rng = np.random.default_rng(3)
+    for compressible in (True, False):   # blocks that do not shrink are stored raw
+        exr, pixels = _filled(shape, names, rng, compressible)
+        path = tmp_path / "zip.exr"
+        path.write_bytes(zip_exr(exr.rows, shape[1], names))
+        assert np.array_equal(read_image(path), pixels)
+        path.write_bytes(zip_exr(half_rows(exr), shape[1], names, half=True))
+        assert read_image_native(path).dtype == np.float16
+        assert np.array_equal(read_image(path), pixels.astype(np.float16).astype(np.float32))
+
+
+def test_auto_compression_zips_what_shrinks_and_leaves_noise_alone():
+    from pipeline.decode.exr import encode_exr
+
+    rng = np.random.default_rng(4)
+    smooth, _ = _filled((64, 80), ("R", "G", "B"), rng, compressible=True)
+    noise, _ = _filled((64, 80), ("R", "G", "B"), rng, compressible=False)
+    data, written = encode_exr(smooth)
+    assert written["compression"] == "zip" and written["bytes"] == len(data) < smooth.data.size / 2
+    data, written = encode_exr(noise)
+    assert written["compression"] == "none" and data is noise.data and written["estimated_ratio"] < 1.8
+    _, written = encode_exr(noise, "zip")
+    assert written["compression"] == "zip" and "estimated_ratio" not in written
+    data, written = encode_exr(noise, "none", half=True)
+    assert written == {"compression": "none", "pixels": "half", "bytes": len(data)}
+
+
+def test_session_linear_files_are_compressed_and_recorded(tmp_path):
+    session = Session.create(tmp_path / "s")
+    for k in range(3):
+        values = np.full((40, 50, 3), 1000 * (k + 1), np.uint16)
+        values[10:20, 10:30] = 30000
+        path = tmp_path / f"f{k}.png"
+        write_image(path, values)
+        session.add_frame("object", source=path, light=k)
+    record = decode_session(session, jobs=1, progress=False)
+    sizes = sum(session.linear_path(f).stat().st_size for f in session.frames())
+    assert record["compression"] == {"zip": 3} and record["linear_bytes"] == sizes
+    assert sizes < 3 * 40 * 50 * 12 / 4
+    for k, frame in enumerate(session.frames()):
+        assert record["frames"][frame["id"]]["exr"]["compression"] == "zip"
+        assert read_image(session.linear_path(frame))[0, 0, 0] == np.float32(1000 * (k + 1)) * np.float32(1 / 65535)
+    record = decode_session(session, jobs=1, progress=False, compression="none", force=True)
+    assert record["compression"] == {"none": 3}
+    assert sum(session.linear_path(f).stat().st_size for f in session.frames()) > 3 * 40 * 50 * 12
+
+
+def test_a_record_from_before_compression_keeps_its_outputs(tmp_path):
+    """psrig run on a session decoded by an earlier version: the linear files stay byte for byte
+    (uncompressed, 16-bit as linear), so nothing after decode is redone."""
+    from pipeline.runner import run_stage
+
+    session = Session.create(tmp_path / "s")
+    for k in range(2):
+        path = tmp_path / f"f{k}.png"
+        write_image(path, np.full((20, 30, 3), 5000 * (k + 1), np.uint16))
+        session.add_frame("object", source=path, light=k)
+    decode_session(session, jobs=1, progress=False, compression="none")
+    record = session.stage("decode")
+    record["params"] = {"method": "mosaic", "channels": "rgb", "binning": 1, "gamma": "srgb"}  # the old form
+    session.save()
+    before = dict(record["outputs"])
+    run_stage(session, "decode", {}, False, 1)
+    after = session.stage("decode")
+    assert after["outputs"] == before and after["params"]["compression"] == "none"
+    assert after["params"]["gamma"] == "auto"

@@ -91,7 +91,7 @@ def test_import_images_errors_leave_nothing(tmp_path, capsys):
     # a sphere frame of another size names the object frame it is compared with, and says
     # how to calibrate sphere photos cropped apart from the object's
     with pytest.raises(InputError, match=r"a4\.png: image is 16x10 but .*a1\.png is .*session of their own.*"
-                                         r"--lights CAL/calibration/lights\.lp"):
+                                         r"psrig calibrate SESSION --from CAL"):
         import_images(dest, str(tmp_path / "obj" / "a[123].png"), sphere_glob=str(tmp_path / "obj" / "a4.png"))
     with pytest.raises(InputError, match=r"--object .*nothing\*\.png.*no files match"):
         import_images(dest, str(tmp_path / "nothing*.png"))

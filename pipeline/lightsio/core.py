@@ -1,4 +1,4 @@
-"""Light files: ``lights.yaml``, the RTI ``.lp`` format and plain text direction lists.
+"""Lights in memory (:class:`LightSet`) and psrig's own ``lights.yaml``.
 
 Directions are unit vectors (K, 3) from the surface toward the light, camera frame (x right,
 y up, z toward the camera), in frame order. Intensities are (K, C), one value per light and
@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .atomic import atomic_write_text
-from .errors import InputError
-from .yamlio import dump_yaml, load_yaml
+from ..atomic import atomic_write_text
+from ..errors import InputError
+from ..yamlio import dump_yaml, load_yaml
 
-__all__ = ["LightSet", "read_lights", "read_lights_text", "read_lp", "write_lp",
-           "read_lights_yaml", "write_lights_yaml", "check_directions"]
+__all__ = ["LightSet", "read_lights_yaml", "write_lights_yaml", "check_directions", "check_intensities",
+           "flag_behind"]
 
 
 @dataclass
@@ -87,88 +87,40 @@ def check_directions(directions, where="lights"):
     return d / norm[:, None]
 
 
-def read_lights(path):
-    """Read lights from ``.yaml``/``.yml``, ``.lp`` or plain text (``x y z`` per line)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: light file not found")
-    suffix = path.suffix.lower()
-    if suffix in (".yaml", ".yml"):
-        return read_lights_yaml(path)
-    if suffix == ".lp":
-        names, dirs = read_lp(path)
-        return LightSet(dirs, filenames=names, source=f"imported from {path.name}")
-    return LightSet(read_lights_text(path), source=f"imported from {path.name}")
-
-
-def _numeric_rows(path):
-    rows = []
-    for lineno, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
-        line = line.split("#", 1)[0].strip()
-        if not line:
-            continue
-        try:
-            rows.append((lineno, [float(t) for t in line.replace(",", " ").split()]))
-        except ValueError:
-            raise InputError(f"{path}:{lineno}: not a row of numbers: {line!r}") from None
-    return rows
-
-
-def read_lights_text(path):
-    """Directions from text: ``x y z`` per line, optionally after a count line.
-
-    A 3-row file with more than 3 columns (lights as columns, as PSBox and MATLAB write them) is
-    transposed.
-    """
-    path = Path(path)
-    rows = _numeric_rows(path)
-    if rows and len(rows[0][1]) == 1:
-        count = rows[0][1][0]
-        rows = rows[1:]
-        if count != len(rows):
-            raise InputError(f"{path}: the count line says {count:g} lights but {len(rows)} follow")
-    widths = {len(r) for _, r in rows}
-    if not rows or len(widths) != 1:
-        raise InputError(f"{path}: expected rows of 3 numbers (x y z), found rows of {sorted(widths)} numbers")
-    data = np.array([r for _, r in rows])
-    if data.shape[0] == 3 and data.shape[1] > 3:
+def check_intensities(values, count, where="intensities"):
+    """Validate intensities for ``count`` lights: (K,), (K, 1) or (K, 3), or the transpose of
+    (K, 1) / (K, 3); returns float64 (K, C). Each must be finite and positive."""
+    data = np.asarray(values, dtype=float)
+    if data.ndim == 1:
+        data = data[:, None]
+    if data.ndim == 2 and data.shape[0] in (1, 3) and data.shape[1] == count and data.shape[0] != count:
         data = data.T
-    if data.shape[1] != 3:
-        raise InputError(f"{path}: expected 3 numbers per light (x y z), found {data.shape[1]}")
-    return check_directions(data, str(path))
+    if data.ndim != 2 or data.shape[0] != count or data.shape[1] not in (1, 3):
+        raise InputError(f"{where}: expected {count} rows of 1 or 3 values (one per light, one per colour "
+                         f"channel), got shape {data.shape}")
+    bad = ~np.isfinite(data).all(axis=1) | (data <= 0).any(axis=1)
+    if bad.any():
+        raise InputError(f"{where}: light {int(np.argmax(bad))} has an intensity that is not a positive "
+                         f"number ({data[int(np.argmax(bad))].tolist()})")
+    return data
 
 
-def read_lp(path):
-    """Read an RTI ``.lp`` file: first line N, then ``filename x y z`` per light."""
-    path = Path(path)
-    lines = [ln.strip() for ln in path.read_text(encoding="utf-8", errors="replace").splitlines() if ln.strip()]
-    try:
-        count = int(lines[0].split()[0])
-    except (IndexError, ValueError):
-        raise InputError(f"{path}:1: an .lp file starts with the light count") from None
-    names, dirs = [], []
-    for lineno, line in enumerate(lines[1:], 2):
-        parts = line.split()
-        try:
-            names.append(parts[0])
-            dirs.append([float(v) for v in parts[1:4]])
-            if len(parts) < 4:
-                raise ValueError
-        except (ValueError, IndexError):
-            raise InputError(f"{path}:{lineno}: expected 'filename x y z', got {line!r}") from None
-    if len(names) != count:
-        raise InputError(f"{path}: the first line says {count} lights but {len(names)} follow")
-    return names, check_directions(dirs, str(path))
+def flag_behind(lights, where="lights"):
+    """Flag (in ``lights.flags``) every light with z <= 0, which cannot light a surface the
+    camera sees from the front; returns their indices.
 
-
-def write_lp(path, filenames, directions):
-    """Write an RTI ``.lp`` file (6 decimals, x right, y up, z toward the camera)."""
-    directions = check_directions(directions)
-    if len(filenames) != len(directions):
-        raise InputError(f"{path}: {len(filenames)} file names for {len(directions)} lights")
-    lines = [str(len(directions))]
-    lines += [f"{name} {x:.6f} {y:.6f} {z:.6f}" for name, (x, y, z) in zip(filenames, directions)]
-    atomic_write_text(path, "\n".join(lines) + "\n")
+    More than half of them so is taken as a file whose z axis points away from the camera
+    (another convention) and refused: flagging them all would leave too few lights.
+    """
+    behind = np.flatnonzero(lights.directions[:, 2] <= 0)
+    if len(behind) > len(lights) / 2:
+        raise InputError(f"{where}: {len(behind)} of {len(lights)} lights have z <= 0 (pointing away from the "
+                         "camera); psrig's frame has x right, y up, z toward the camera: negate z (and y if the "
+                         "file's y points down) and import again")
+    for k in behind:
+        lights.flags.setdefault(int(k), f"z = {lights.directions[k, 2]:.3f} <= 0: the light is behind the "
+                                        "surface, facing away from the camera")
+    return [int(k) for k in behind]
 
 
 def read_lights_yaml(path):

@@ -1,0 +1,85 @@
+"""One sphere calibration for many object sessions: ``psrig calibrate SESSION --from CAL``.
+
+The lights of another session (its ``calibration/lights.yaml``, from its own calibrate stage or
+imported) become this session's, for its object frames in light order. The source's path and
+the sha256 of its lights.yaml are the stage's parameters, so a recalibrated source makes the
+next ``psrig run`` redo this stage and everything after it. Near-light positions are kept only
+when both sessions' frames have the same size: they are in the source's pixels.
+"""
+
+import time
+from pathlib import Path
+
+from pipeline.decode import frame_size
+from pipeline.errors import InputError, PsrigError, StageError
+from pipeline.lightsio import LightSet, read_lights_yaml, write_lights_yaml, write_lp
+from pipeline.paths import LIGHTS, LIGHTS_LP
+from pipeline.session import Session, file_sha256
+
+__all__ = ["reuse_calibration"]
+
+
+def _source(path):
+    """(Session, lights.yaml path) of the session to take the lights from."""
+    try:
+        other = Session.open(path)
+    except PsrigError as exc:
+        raise InputError(f"--from {path}: {exc}") from None
+    lights = other.path(LIGHTS)
+    if not lights.is_file():
+        raise InputError(f"--from {path}: it has no {LIGHTS}; calibrate it first (psrig run {path} --to calibrate)")
+    record = other.stage("calibrate")
+    if record is not None and record.get("status", "ok") != "ok":
+        raise InputError(f"--from {path}: its calibrate stage ended {record.get('status')!r}")
+    return other, lights
+
+
+def _frame_size(session):
+    """(height, width) of a session's first frame as decoded, or None when it has none."""
+    frames = session.frames()
+    return frame_size(session.path(frames[0]["file"])) if frames else None
+
+
+def reuse_calibration(session, source, *, force=False, echo=print):
+    """Write ``source``'s lights as ``session``'s (see the module docstring).
+
+    Parameters
+    ----------
+    session : pipeline.session.Session
+    source : path
+        The calibrated session.
+    force : bool
+    echo : callable
+
+    Returns
+    -------
+    LightSet or None (up to date)
+    """
+    other, lights_path = _source(source)
+    params = {"from_session": str(Path(source).expanduser().absolute()),
+              "from_session_sha256": file_sha256(lights_path)}
+    if not force and session.stage_is_current("calibrate", params, {}):
+        echo(f"{session.root}: calibrate is up to date (lights from {source})")
+        return None
+    start = time.perf_counter()
+    lights = read_lights_yaml(lights_path)
+    objects = sorted(session.frames("object"), key=lambda f: f["light"])
+    if not objects:
+        raise StageError(f"{session.root}: no object frames to give the lights of {source} to")
+    if len(lights) != len(objects) or objects[-1]["light"] != len(lights) - 1:
+        raise InputError(f"--from {source}: {len(lights)} lights for {len(objects)} object frames "
+                         f"(lights 0 .. {objects[-1]['light']}); the sessions must be shot under the same lights")
+    positions, note = lights.positions, ""
+    if positions is not None and _frame_size(session) != _frame_size(other):
+        positions, note = None, "; near-light positions dropped (the frames differ in size from the source's)"
+    reused = LightSet(lights.directions, lights.intensities, positions=positions, flags=dict(lights.flags),
+                      source=f"calibration of session {other.root} (lights.yaml sha256 "
+                             f"{params['from_session_sha256'][:12]}): {lights.source}{note}",
+                      extra=dict(lights.extra))
+    write_lights_yaml(session.path(LIGHTS), reused)
+    write_lp(session.path(LIGHTS_LP), [f.get("source", Path(f["file"]).name) for f in objects], reused.directions)
+    session.record_stage("calibrate", params, {}, [LIGHTS, LIGHTS_LP], seconds=time.perf_counter() - start,
+                         flagged=reused.flags, light_model=reused.extra.get("light_model", "directional"),
+                         source_session=str(other.root))
+    echo(f"{session.root}: lights from {other.root} ({len(reused)} lights{note})")
+    return reused

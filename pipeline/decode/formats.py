@@ -1,0 +1,104 @@
+"""What a frame file is, decided by its content (not its suffix): an image or a camera raw.
+
+OpenImageIO is asked first: it reads the image formats (PNG, TIFF, EXR, JPEG, TGA, BMP, ...),
+each plugin checking the file's own signature. Camera raw files are mostly TIFF containers
+(DNG, CR2, NEF, ARW, ...) whose first directory OpenImageIO would happily return as a
+thumbnail or a grey mosaic, so a file it reads as TIFF is offered to LibRaw too, which accepts
+only real camera raws; a file OpenImageIO cannot open (RAF, CR3, ...) goes to LibRaw alone.
+"""
+
+import os
+from dataclasses import dataclass
+from functools import lru_cache
+
+import OpenImageIO as oiio
+import rawpy
+
+from ..errors import ImageFileError
+
+__all__ = ["FrameFormat", "frame_format", "readable_formats", "RAW_EXAMPLES"]
+
+#: a few of the camera raw formats LibRaw reads, for messages
+RAW_EXAMPLES = "DNG, CR2, CR3, NEF, ARW, RAF, ORF, RW2, PEF"
+
+
+@dataclass(frozen=True)
+class FrameFormat:
+    """``kind`` 'image' (OpenImageIO) or 'raw' (LibRaw), ``name`` (OpenImageIO's format name,
+    such as 'png' or 'targa', or 'raw') and, for images, ``size`` (height, width) and
+    ``channels``."""
+
+    kind: str
+    name: str
+    size: tuple = None
+    channels: int = None
+
+
+def _oiio_format(path):
+    """(format name, (height, width), channels) for ``path``, or None when no plugin reads it."""
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()  # clear the pending message: it is not this module's to report
+        return None
+    spec = inp.spec()
+    found = inp.format_name(), (spec.height, spec.width), spec.nchannels
+    inp.close()
+    return found
+
+
+def _is_camera_raw(path):
+    try:
+        with rawpy.imread(str(path)):
+            return True
+    except (rawpy.LibRawError, OSError, ValueError):
+        return False
+
+
+def frame_format(path):
+    """Decide how to decode a frame file from its content.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    FrameFormat
+
+    Raises
+    ------
+    ImageFileError
+        Neither OpenImageIO nor LibRaw reads the file; the message lists what they read.
+    """
+    try:
+        stat = os.stat(path)
+    except OSError as exc:
+        raise ImageFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    # a decode worker asks twice per frame (its fast path, then the decoder): answered once
+    return _frame_format(str(path), stat.st_mtime_ns, stat.st_size)
+
+
+@lru_cache(maxsize=64)
+def _frame_format(path, mtime_ns, size):
+    found = _oiio_format(path)
+    if found is not None and found[0] != "tiff":
+        return FrameFormat("image", *found)
+    if _is_camera_raw(path):
+        return FrameFormat("raw", "raw")
+    if found is not None:
+        return FrameFormat("image", *found)
+    raise ImageFileError(f"{path}: neither an image nor a camera raw file psrig can decode; "
+                         f"{readable_formats()}")
+
+
+@lru_cache(maxsize=1)
+def readable_formats():
+    """One sentence naming the formats psrig decodes (OpenImageIO's plugins and LibRaw)."""
+    plugins = []
+    for entry in oiio.get_string_attribute("extension_list").split(";"):
+        name, _, suffixes = entry.partition(":")
+        if name in ("null", "term", "zfile") or not suffixes:
+            continue
+        plugins.append(suffixes.split(",")[0].upper())
+    return (f"readable are the images OpenImageIO reads ({', '.join(plugins)}) and the camera "
+            f"raw files LibRaw reads ({RAW_EXAMPLES}, ...)")
