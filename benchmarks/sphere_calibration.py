@@ -1,4 +1,4 @@
-"""Calibration benchmark: ``python benchmarks/calibration.py [../shared/data/psbox]``.
+"""Calibration benchmark: ``python benchmarks/sphere_calibration.py [../shared/data/psbox]``.
 
 Prints, per PSBox probe, the angles to the probe's own published directions (median vs the
 0.5 deg target, no clicks): from the light frames alone, then through a session that carries the
