@@ -106,9 +106,10 @@ def _calibrate(session, options, force, jobs):
 def _normals(session, options, force, jobs):
     if not session.path(LIGHTS).is_file():
         raise StageError(f"{session.path(LIGHTS)}: missing; the calibrate stage makes it")
-    from .photometric import normals_session
+    from .photometric import normals_session, normals_summary
 
-    normals_session(session, force=force, **options)
+    record = normals_session(session, force=force, **options)   # its warnings are in its record
+    return normals_summary(record) if record is not None else None
 
 
 def _integrate(session, options, force, jobs):

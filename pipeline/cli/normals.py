@@ -34,7 +34,7 @@ def register(sub):
 
 
 def run(args):
-    from ..photometric import normals_session
+    from ..photometric import normals_session, normals_summary
 
     t_low = args.t_low
     if t_low is not None:
@@ -49,6 +49,7 @@ def run(args):
     if record is None:
         print(f"{session.root}: normals up to date (use --force to rerun)")
         return 0
-    counts = ", ".join(f"{k} {v}" for k, v in record["status_counts"].items() if v)
-    print(f"{session.root}: normals ({args.method}) for {record['pixels']} pixels in {record['seconds']:.2f} s: {counts}")
+    print(f"{session.root}: normals ({args.method}) in {record['seconds']:.2f} s; {normals_summary(record)}")
+    for warning in record.get("warnings", []):
+        print(f"{session.root}: normals: warning: {warning}")
     return 0

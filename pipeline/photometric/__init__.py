@@ -28,12 +28,13 @@ from .estimate import PhotometricResult, SolvePlan, check_lights, estimate_norma
 from .methods import METHODS, STATUS, STATUS_NAMES, get_method, register_model_methods
 from .near_lights import PointLights, observations_at
 from .selection import light_spread_deg, resolve_selection
-from .stage import normals_session
+from .stage import normals_session, normals_summary, normals_warnings
 from .tiles import SCRATCH, WHOLE_IMAGE, TilePlan, assemble_normals, plan_normals, run_tile
 
 register_model_methods()
 
 __all__ = ["estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_lights", "METHODS",
            "get_method", "STATUS", "STATUS_NAMES", "Biquadratic", "biquadratic_method", "PointLights",
-           "observations_at", "light_spread_deg", "resolve_selection", "normals_session", "TilePlan",
+           "observations_at", "light_spread_deg", "resolve_selection", "normals_session", "normals_summary",
+           "normals_warnings", "TilePlan",
            "plan_normals", "run_tile", "assemble_normals", "WHOLE_IMAGE", "SCRATCH"]

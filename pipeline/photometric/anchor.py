@@ -73,7 +73,8 @@ def scale_cone(lights, scale):
     return np.stack([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)], axis=1)
 
 
-def highlight_mismatch(obs, b, lights, min_peak=MIN_PEAK, lobe_deg=LOBE_DEG, valid=None, max_lobe_deg=MAX_LOBE_DEG):
+def highlight_mismatch(obs, b, lights, min_peak=MIN_PEAK, lobe_deg=LOBE_DEG, valid=None, max_lobe_deg=MAX_LOBE_DEG,
+                       rows=False):
     """Slant of the estimated normal minus slant of its specular-peak centroid, per pixel (deg).
 
     Parameters
@@ -95,6 +96,9 @@ def highlight_mismatch(obs, b, lights, min_peak=MIN_PEAK, lobe_deg=LOBE_DEG, val
         False for observations not to use (saturated ones).
     max_lobe_deg : float
         Widest lobe counted (:data:`MAX_LOBE_DEG`).
+    rows : bool
+        Also return the rows (P,) of the pixels that show a peak (before the lobe-width test):
+        the pixels a probe of other lights needs to solve again.
 
     Returns
     -------
@@ -117,7 +121,7 @@ def highlight_mismatch(obs, b, lights, min_peak=MIN_PEAK, lobe_deg=LOBE_DEG, val
     nz = np.where(albedo > 0, b[:, 2] / np.maximum(albedo, 1e-300), -1.0)
     inner = np.flatnonzero(nz > np.cos(np.radians(max_h - lobe_deg)))   # cheap prefilter
     if inner.size == 0:
-        return np.zeros(0)
+        return (np.zeros(0), inner) if rows else np.zeros(0)
     n = b[inner] / albedo[inner, None]
     diffuse = np.maximum(n @ lights.T, 0.0) * albedo[inner, None]
     near = (n @ h.T) > cos_lobe
@@ -136,7 +140,8 @@ def highlight_mismatch(obs, b, lights, min_peak=MIN_PEAK, lobe_deg=LOBE_DEG, val
     model = _half_max_centroid(np.where(window, np.exp(-angle2 / (2 * width2[:, None])), 0.0), h)
     ok = np.isfinite(width2) & (width2 <= np.radians(max_lobe_deg) ** 2) & (np.linalg.norm(data, axis=1) > 0) \
         & (np.linalg.norm(model, axis=1) > 0)
-    return _slant(model[ok]) - _slant(data[ok])
+    mismatch = _slant(model[ok]) - _slant(data[ok])
+    return (mismatch, inner[peak]) if rows else mismatch
 
 
 def _half_max_centroid(weights, h):
@@ -184,7 +189,8 @@ def first_verdict(mismatch, min_pixels=MIN_PIXELS, tol=TOL_DEG):
     return dict(info, anchor="consistent" if abs(info["mismatch_deg"]) <= tol else "to correct")
 
 
-def anchor_scale(solve, lights, min_pixels=MIN_PIXELS, max_change=MAX_CHANGE, step=PROBE_STEP, tol=TOL_DEG):
+def anchor_scale(solve, lights, min_pixels=MIN_PIXELS, max_change=MAX_CHANGE, step=PROBE_STEP, tol=TOL_DEG,
+                 probe=None):
     """The light-cone scale that makes normals agree with their specular peaks, and the result.
 
     Parameters
@@ -193,6 +199,9 @@ def anchor_scale(solve, lights, min_pixels=MIN_PIXELS, max_change=MAX_CHANGE, st
         ``solve(lights) -> (result, mismatch)``: runs the normal estimation with the given
         (K, 3) lights and returns its result and :func:`highlight_mismatch` values (M,).
     lights : ndarray (K, 3)
+    probe : callable, optional
+        ``probe(lights) -> mismatch`` (M,): the mismatches at other lights from a cheaper solve
+        (the pixels that peaked, the first solve's context); default: a full ``solve``.
 
     Returns
     -------
@@ -205,21 +214,21 @@ def anchor_scale(solve, lights, min_pixels=MIN_PIXELS, max_change=MAX_CHANGE, st
 
     Notes
     -----
-    Two solves: the nominal lights and 1 +- ``step``; the secant root of the median mismatch
-    must lie within ``max_change`` of 1, and the mismatch must fall as the scale rises (the
-    sign a global error gives). Then a third solve at the root.
+    Two evaluations: the nominal lights and 1 +- ``step`` (the probe); the secant root of the
+    median mismatch must lie within ``max_change`` of 1, and the mismatch must fall as the
+    scale rises (the sign a global error gives). Then a second solve at the root.
     """
     result, mismatch = solve(lights)
     info = first_verdict(mismatch, min_pixels, tol)
     if info["anchor"] != "to correct":
         return result, info
     d0 = info["mismatch_deg"]
-    probe = 1.0 + step * np.sign(d0)
-    probe_result, probe_mismatch = solve(scale_cone(lights, probe))
+    probed = 1.0 + step * np.sign(d0)
+    probe_mismatch = probe(scale_cone(lights, probed)) if probe else solve(scale_cone(lights, probed))[1]
     if probe_mismatch.size < min_pixels:
         return result, dict(info, anchor="no global root")
     d1 = float(np.median(probe_mismatch))
-    slope = (d1 - d0) / (probe - 1.0)
+    slope = (d1 - d0) / (probed - 1.0)
     root = 1.0 - d0 / slope if slope < 0 else np.inf
     if not abs(root - 1.0) <= max_change:
         return result, dict(info, anchor="no global root", probe_mismatch_deg=d1)

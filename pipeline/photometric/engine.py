@@ -18,6 +18,7 @@ faster than 8192.
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -26,9 +27,12 @@ from .anchor import highlight_mismatch
 from .methods import STATUS
 from .near_lights import PointLights, observations_at
 
-__all__ = ["Context", "OnePhase", "phases_of", "gatherer", "prepare_context", "solve_chunk",
-           "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS"]
+__all__ = ["Context", "ChunkRun", "OnePhase", "phases_of", "gatherer", "prepare_context", "solve_chunk",
+           "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS",
+           "NO_NORMAL"]
 
+#: statuses without a normal (zero in the maps)
+NO_NORMAL = (STATUS["too_few"], STATUS["shadowed"], STATUS["ill_posed"])
 #: what a method's context reports in the result: the shared shape and its check
 SHARED_KEYS = ("shape_paper", "shape_check")
 #: Pixels per chunk (memory per chunk is about CHUNK_SIZE x K x 200 bytes)
@@ -37,6 +41,30 @@ CHUNK_SIZE = 2048
 #: prepared; the selection's weights make about three times that. 32 MiB is 20 chunks of 2048
 #: pixels x 96 lights, which on that object takes the wall time from 0.46 to 0.42 s (2 cores).
 LOOKAHEAD_BYTES = 32 * 2**20
+
+
+class ChunkRun(NamedTuple):
+    """What :func:`run_chunks` returns.
+
+    Attributes
+    ----------
+    maps : dict
+        :func:`allocate_maps`' maps, filled.
+    shared : dict
+        The :data:`SHARED_KEYS` of the method's context (None when absent).
+    mismatch : ndarray (M,)
+        The specular-peak mismatches (empty without ``anchor``).
+    peaks : ndarray (P,) int
+        Flat indices of the pixels that show a specular peak (empty without ``anchor``).
+    context : dict
+        The method's whole context (``run_chunks(..., context=)`` solves more pixels with it).
+    """
+
+    maps: dict
+    shared: dict
+    mismatch: np.ndarray
+    peaks: np.ndarray
+    context: dict
 
 
 class OnePhase:
@@ -68,6 +96,10 @@ class Context:
 
     def get(self, key, default=None):
         return default if self._future is None else self._future.result().get(key, default)
+
+    def get_all(self):
+        """The whole context dict (waits for it)."""
+        return {} if self._future is None else self._future.result()
 
 
 def gatherer(flat_images, flat_valid, lights, offset=0):
@@ -110,13 +142,13 @@ def solve_chunk(phases, picked, context, options, anchor):
     """The fit of one selected chunk; with ``anchor``, also its specular-peak mismatches.
 
     ``picked`` is what ``phases.select`` returned. The mismatches (``chunk["mismatch"]``,
-    :func:`pipeline.photometric.anchor.highlight_mismatch`) are measured here, on the chunk's
-    observations already in memory (no second gather).
+    :func:`pipeline.photometric.anchor.highlight_mismatch`; ``chunk["peaks"]`` the chunk's rows
+    that show a peak) are measured here, on the chunk's observations already in memory.
     """
     chunk = phases.fit(picked, context=context, **options)
     if anchor:
-        chunk["mismatch"] = highlight_mismatch(picked["obs"], np.nan_to_num(chunk["b"]), picked["lights"],
-                                               valid=picked["valid"])
+        chunk["mismatch"], chunk["peaks"] = highlight_mismatch(picked["obs"], np.nan_to_num(chunk["b"]),
+                                                               picked["lights"], valid=picked["valid"], rows=True)
     return chunk
 
 
@@ -133,8 +165,7 @@ def scatter_chunk(maps, idx, chunk):
     rows, cols = np.unravel_index(idx, maps["status"].shape)
     b = chunk["b"]
     albedo = np.linalg.norm(b, axis=1)
-    ok = np.isfinite(b).all(axis=1) & (albedo > 0) & (chunk["status"] != STATUS["too_few"]) \
-        & (chunk["status"] != STATUS["shadowed"])
+    ok = np.isfinite(b).all(axis=1) & (albedo > 0) & ~np.isin(chunk["status"], NO_NORMAL)
     normals = np.where(ok[:, None], b / np.where(ok, albedo, 1.0)[:, None], 0.0)
     maps["normals"][rows, cols] = normals
     maps["albedo"][rows, cols] = np.where(ok, albedo, 0.0)
@@ -147,7 +178,7 @@ def scatter_chunk(maps, idx, chunk):
 
 
 def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_size=CHUNK_SIZE, workers=None,
-               progress=None):
+               progress=None, context=None):
     """One estimation over every chunk of ``pixels``.
 
     Parameters
@@ -165,18 +196,15 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
         Also measure the specular-peak mismatches.
     chunk_size, workers, progress
         Pixels per chunk; threads (default: the cores); ``progress(n)`` after each chunk.
+    context : dict, optional
+        The method's shared context, when it is known already (not prepared again).
 
     Returns
     -------
-    maps : dict
-        :func:`allocate_maps`' maps, filled.
-    shared : dict
-        The :data:`SHARED_KEYS` of the method's context (None when absent).
-    mismatch : ndarray (M,)
-        The specular-peak mismatches (empty without ``anchor``).
+    ChunkRun
     """
     out = {}
-    mismatch = []
+    mismatch, peaks = [], []
     lock = threading.Lock()
     pieces = [pixels[i:i + chunk_size] for i in range(0, len(pixels), chunk_size)]
     chunks = iter(pieces)
@@ -190,6 +218,7 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
             scatter_chunk(out, idx, chunk)
             if anchor:
                 mismatch.append(chunk["mismatch"])
+                peaks.append(idx[chunk["peaks"]])
         if progress:
             progress(len(idx))
 
@@ -218,9 +247,13 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
     with threadpool_limits(1), ThreadPoolExecutor(n_workers) as pool:
         # Submitted first, so a worker takes it before any chunk; the other workers select
         # chunks meanwhile.
-        context = Context(pool.submit(solver.prepare, gather, pixels, **options)
-                          if hasattr(solver, "prepare") else None)
+        if context is None:
+            context = Context(pool.submit(solver.prepare, gather, pixels, **options)
+                              if hasattr(solver, "prepare") else None)
+        else:
+            context = Context(pool.submit(dict, context))
         for future in [pool.submit(work) for _ in range(n_workers)]:
             future.result()
-    shared = {key: context.get(key) for key in SHARED_KEYS}
-    return out, shared, (np.concatenate(mismatch) if mismatch else np.zeros(0))
+    return ChunkRun(out, {key: context.get(key) for key in SHARED_KEYS},
+                    np.concatenate(mismatch) if mismatch else np.zeros(0),
+                    np.concatenate(peaks) if peaks else np.zeros(0, np.int64), context.get_all())

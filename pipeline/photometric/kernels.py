@@ -25,7 +25,7 @@ __all__ = ["jit_enabled", "kernels", "fit_pixels_jit", "select_robust_jit", "com
            "KERNELS"]
 
 _MU0, _MU_MAX = 1e-6, 1e8   # as pipeline.photometric.pixel_fit
-_K_IN, _MIN_DET = 2.5, 1e-3  # as pipeline.photometric.selection.consensus_weights
+_K_IN, _MIN_DET, _SCORED = 2.5, 1e-3, 32  # as pipeline.photometric.selection.consensus_weights
 
 
 def jit_enabled():
@@ -121,7 +121,7 @@ def _fit_shared(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol, d
     n_pix, k = obs.shape
     o, w = np.empty(k), np.empty(k)
     lt, ht, yp = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 5))
-    work = np.empty((4, k))
+    work, mats, a11, vecs = np.empty((4, k)), np.empty((3, 9, 9)), np.empty((11, 11)), np.empty((9, 11))
     for p in range(n_pix):
         m = 0
         for j in range(k):
@@ -132,8 +132,8 @@ def _fit_shared(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol, d
                 for i in range(5):
                     yp[m, i] = ypow[j, i]
                 m += 1
-        _fit_one(o, w, lt, ht, yp, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, b_out[p], c_out[p], rss_out,
-                 moving_out, dof_out, p)
+        _fit_one(o, w, lt, ht, yp, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, b_out[p],
+                 c_out[p], rss_out, moving_out, dof_out, p)
 
 
 def _fit_per_pixel(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol, dof_below, b_out, c_out,
@@ -142,7 +142,7 @@ def _fit_per_pixel(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol
     n_pix, k = obs.shape
     o, w = np.empty(k), np.empty(k)
     lt, ht, yp = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 5))
-    work = np.empty((4, k))
+    work, mats, a11, vecs = np.empty((4, k)), np.empty((3, 9, 9)), np.empty((11, 11)), np.empty((9, 11))
     for p in range(n_pix):
         m = 0
         for j in range(k):
@@ -153,44 +153,43 @@ def _fit_per_pixel(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol
                 for i in range(5):
                     yp[m, i] = ypow[p, j, i]
                 m += 1
-        _fit_one(o, w, lt, ht, yp, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, b_out[p], c_out[p], rss_out,
-                 moving_out, dof_out, p)
+        _fit_one(o, w, lt, ht, yp, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, b_out[p],
+                 c_out[p], rss_out, moving_out, dof_out, p)
 
 
-def _fit_one(o, w, lt, ht, yp, m, b0, penalty, max_iter, cos_tol, dof_below, work, b_out, c_out, rss_out, moving_out,
-             dof_out, p):
-    """One pixel: the linear start for c, then Levenberg-Marquardt steps; writes its results."""
+def _fit_one(o, w, lt, ht, yp, m, b0, penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, b_out, c_out,
+             rss_out, moving_out, dof_out, p):
+    """One pixel: the linear start for c, then Levenberg-Marquardt steps; writes its results.
+
+    ``work`` (4, K), ``mats`` (3, 9, 9), ``a11`` (11, 11) and ``vecs`` (9, 11) are scratch,
+    allocated once per call of the kernel rather than once per pixel.
+    """
     norm = math.sqrt(b0[0] * b0[0] + b0[1] * b0[1] + b0[2] * b0[2])
-    n = np.empty(3)
+    n, c, rhs = vecs[0, :3], vecs[1, :9], vecs[2, :9]
     for i in range(3):
         n[i] = b0[i] / max(norm, 1e-300)
     xs, cs = work[0], work[1]
     _geometry(n, lt, ht, xs, cs, m)
-    data = np.empty((9, 9))
-    rhs = np.empty(9)
+    data, pen, a9 = mats[0], mats[1], mats[2]
     _coefficient_system(o, w, yp, xs, cs, m, data, rhs)
     scale = 1e-300
     for i in range(9):
         scale += data[i, i] / 9.0
-    pen = np.empty((9, 9))
-    a9 = np.empty((9, 9))
     for i in range(9):
         for j in range(9):
             pen[i, j] = scale * penalty[i, j]
             a9[i, j] = data[i, j] + pen[i, j]
-    c = np.empty(9)
     _cholesky_solve(a9, rhs, c, 9)
     cost = _cost(o, w, yp, xs, cs, m, c, pen)
     moving = 1
     if not math.isfinite(cost):
         moving = 0
     else:
-        moving = _iterate(o, w, lt, ht, yp, m, n, c, pen, cost, max_iter, cos_tol, work)
-    _geometry(n, lt, ht, xs, cs, m)
-    rss, albedo = _rss_albedo(o, w, yp, xs, cs, m, c)
+        moving = _iterate(o, w, lt, ht, yp, m, n, c, pen, cost, max_iter, cos_tol, work, a11, vecs)
+    rss, albedo = _rss_albedo(o, w, yp, xs, cs, m, c)   # xs, cs: the geometry of the final n
     if m < dof_below:
         _coefficient_system(o, w, yp, xs, cs, m, data, rhs)
-        dof_out[p] = 2.0 + _hat_trace(data, pen)
+        dof_out[p] = 2.0 + _hat_trace(data, pen, a9)
     else:
         dof_out[p] = 11.0
     if not (albedo > 0.0 and math.isfinite(albedo)):
@@ -203,18 +202,17 @@ def _fit_one(o, w, lt, ht, yp, m, b0, penalty, max_iter, cos_tol, dof_below, wor
     moving_out[p] = moving
 
 
-def _iterate(o, w, lt, ht, yp, m, n, c, pen, cost, max_iter, cos_tol, work):
-    """Levenberg-Marquardt steps on (n, c) in place; returns 1 while the normal still turns."""
-    a = np.empty((11, 11))
-    e = np.empty(11)
-    step = np.empty(11)
-    n_try, c_try = np.empty(3), np.empty(9)
-    t1, t2 = np.empty(3), np.empty(3)
+def _iterate(o, w, lt, ht, yp, m, n, c, pen, cost, max_iter, cos_tol, work, a, vecs):
+    """Levenberg-Marquardt steps on (n, c) in place; returns 1 while the normal still turns.
+
+    On entry and exit work[0], work[1] hold the geometry (n . h, n . l) of the current n.
+    """
+    e, step = vecs[3], vecs[4]
+    n_try, c_try, t1, t2 = vecs[5, :3], vecs[6, :9], vecs[7, :3], vecs[8, :3]
     mu = _MU0
     xs, cs, xt, ct = work[0], work[1], work[2], work[3]
     for it in range(max_iter):
         _tangents(n, t1, t2)
-        _geometry(n, lt, ht, xs, cs, m)
         _step_system(o, w, lt, ht, yp, xs, cs, m, c, t1, t2, pen, a, e)
         for i in range(11):
             a[i, i] += mu * a[i, i] + 1e-300
@@ -237,6 +235,8 @@ def _iterate(o, w, lt, ht, yp, m, n, c, pen, cost, max_iter, cos_tol, work):
                 n[i] = n_try[i]
             for i in range(9):
                 c[i] = c_try[i]
+            for j in range(m):
+                xs[j], cs[j] = xt[j], ct[j]
             cost = cost_try
             mu = max(mu / 10.0, 1e-12)
             if turned >= cos_tol:
@@ -372,23 +372,19 @@ def _rss_albedo(o, w, yp, xs, cs, m, c):
     return rss, level / max(count, 1e-300)
 
 
-def _hat_trace(data, pen):
-    """trace((data + pen)^-1 data): the coefficients' effective number of parameters."""
-    a = np.empty((9, 9))
-    for i in range(9):
-        for q in range(9):
-            a[i, q] = data[i, q] + pen[i, q]
+def _hat_trace(data, pen, a):
+    """trace((data + pen)^-1 data): the coefficients' effective number of parameters (a (9, 9)
+    is scratch)."""
     col = np.empty(9)
     out = np.empty(9)
     total = 0.0
-    factor = a.copy()
     for q in range(9):
         for i in range(9):
             col[i] = data[i, q]
         for i in range(9):
             for r in range(9):
-                factor[i, r] = a[i, r]
-        _cholesky_solve(factor, col, out, 9)
+                a[i, r] = data[i, r] + pen[i, r]
+        _cholesky_solve(a, col, out, 9)
         total += out[q]
     return total
 
@@ -452,9 +448,9 @@ def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, floor,
         w[j] = lit[j]
         if lit[j] > 0.0:
             m += 1
-    b0, b1, b2, best = _consensus(o, lt, lit, m, triplets, scratch, packed)
+    b0, b1, b2, best, scored = _consensus(o, lt, lit, m, triplets, scratch, packed)
     if math.isfinite(best):
-        scale = max(1.4826 * (1.0 + 5.0 / max(m - 3, 1)) * math.sqrt(best),
+        scale = max(1.4826 * (1.0 + 5.0 / max(scored - 3, 1)) * math.sqrt(best),
                     floor * math.sqrt(b0 * b0 + b1 * b1 + b2 * b2))
         kept = 0
         for j in range(k):
@@ -490,12 +486,18 @@ def _consensus(o, lt, lit, m, triplets, scratch, packed):
     """The least-median-of-squares triplet: its b and median squared residual (inf if none)."""
     k = len(o)
     # the lit observations, contiguous: every triplet's residuals are a branch-free pass
+    # (at most _SCORED of them, evenly spread: the median of a spread subset ranks triplets as well)
     oc, l0, l1, l2 = packed[0], packed[1], packed[2], packed[3]
+    scored = min(m, _SCORED)
     c = 0
+    rank = 0
     for j in range(k):
         if lit[j] > 0.0:
-            oc[c], l0[c], l1[c], l2[c] = o[j], lt[j, 0], lt[j, 1], lt[j, 2]
-            c += 1
+            if c < scored and rank == (c * m) // scored:
+                oc[c], l0[c], l1[c], l2[c] = o[j], lt[j, 0], lt[j, 1], lt[j, 2]
+                c += 1
+            rank += 1
+    m = scored
     half = m // 2
     best = np.inf
     b0 = b1 = b2 = 0.0
@@ -523,7 +525,7 @@ def _consensus(o, lt, lit, m, triplets, scratch, packed):
         med = _kth_smallest(scratch, m, half)
         if med < best:
             best, b0, b1, b2 = med, x0, x1, x2
-    return b0, b1, b2, best
+    return b0, b1, b2, best, m
 
 
 def _lambert(o, lt, w, b):

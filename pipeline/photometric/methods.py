@@ -22,18 +22,22 @@ from .model import unit
 from .lambert import lambert_weighted
 from .selection import select_observations
 
-__all__ = ["METHODS", "get_method", "STATUS", "STATUS_NAMES", "STATUS_PALETTE", "MIN_OBS", "base_status", "shading",
+__all__ = ["METHODS", "get_method", "STATUS", "STATUS_NAMES", "STATUS_PALETTE", "MIN_OBS", "ILL_CONDITIONED",
+           "base_status", "ill_conditioned", "facing_away", "no_normal", "shading",
            "lambert_method", "lambert_low_method", "ModelAlternation", "register_model_methods"]
 
 STATUS = {"background": 0, "ok": 1, "shadowed": 2, "too_few": 3, "not_converged": 4, "lambert_fallback": 5,
-          "shared_shape": 6}
+          "shared_shape": 6, "ill_posed": 7}
 STATUS_NAMES = {code: name for name, code in STATUS.items()}
 #: The one colour (RGB) of each status, by name: normals/status_vis.png and the report's map and
 #: legend both use it; a status without a colour here is drawn in mid grey.
 STATUS_PALETTE = {"background": (0, 0, 0), "ok": (60, 170, 60), "shadowed": (40, 40, 160),
                   "too_few": (200, 160, 0), "not_converged": (220, 40, 40), "lambert_fallback": (150, 80, 200),
-                  "shared_shape": (0, 160, 170)}
+                  "shared_shape": (0, 160, 170), "ill_posed": (240, 120, 0)}
 MIN_OBS = 3
+#: the weakest direction of a pixel's selected lights, relative to the strongest (eigenvalues of
+#: sum_k w l l^T), below which its normal is not determined (:func:`ill_conditioned`)
+ILL_CONDITIONED = 1e-3
 
 #: Photometric-stereo methods by name (``psrig normals --method NAME``)
 METHODS = Registry("photometric stereo method")
@@ -44,13 +48,41 @@ def get_method(name):
     return METHODS[name]
 
 
-def base_status(weights, base):
-    """Status codes (N,) and observation counts (N,) from selected and non-shadowed weights."""
+def base_status(weights, base, lights=None):
+    """Status codes (N,) and observation counts (N,) from selected and non-shadowed weights.
+
+    With ``lights`` (K, 3) or (N, K, 3), pixels whose selected lights are too close to coplanar
+    to determine a normal (:func:`ill_conditioned`) are ``ill_posed``.
+    """
     used = weights.sum(axis=1)
     status = np.full(len(weights), STATUS["ok"], np.uint8)
+    if lights is not None:
+        status[(used >= MIN_OBS) & ill_conditioned(weights, lights)] = STATUS["ill_posed"]
     status[used < MIN_OBS] = STATUS["too_few"]
     status[base.sum(axis=1) == 0] = STATUS["shadowed"]
     return status, used
+
+
+def ill_conditioned(weights, lights, ratio=ILL_CONDITIONED):
+    """Pixels (N,) bool whose weighted lights span three dimensions too weakly: the smallest
+    eigenvalue of sum_k w l l^T under ``ratio`` x the largest (noise amplified over 30x)."""
+    normal = np.einsum("nk,ki,kj->nij", weights, lights, lights) if lights.ndim == 2 else \
+        np.einsum("nk,nki,nkj->nij", weights, lights, lights)
+    eig = np.linalg.eigvalsh(normal)
+    return eig[:, 0] < ratio * np.maximum(eig[:, 2], 1e-300)
+
+
+def facing_away(b):
+    """Pixels (N,) bool whose b (N, 3) does not face the camera (n_z <= 0, or not finite): an
+    orthographic camera cannot see such a surface, so no observation supports it."""
+    return ~(np.isfinite(b).all(axis=1) & (b[:, 2] > 0))
+
+
+def no_normal(status, b):
+    """``status`` with the pixels whose b faces away from the camera marked ``ill_posed``
+    (their normals are then not reported: never a normal facing away)."""
+    solved = (status != STATUS["too_few"]) & (status != STATUS["shadowed"])
+    return np.where(solved & facing_away(b), np.uint8(STATUS["ill_posed"]), status).astype(np.uint8)
 
 
 def shading(b, lights):
@@ -63,18 +95,20 @@ def lambert_method(obs, valid, lights, context=None, **_):
     """Lambertian least squares on every valid observation."""
     weights = np.ones_like(obs) if valid is None else valid.astype(obs.dtype)
     b = lambert_weighted(obs, lights, weights)
-    status, used = base_status(weights, weights)
+    status, used = base_status(weights, weights, lights)
     rss = np.sum(weights * (obs - shading(b, lights)) ** 2, axis=1)
-    return {"b": b, "status": status, "used": used, "rss": rss, "params": np.linalg.norm(b, axis=1)[:, None]}
+    return {"b": b, "status": no_normal(status, b), "used": used, "rss": rss,
+            "params": np.linalg.norm(b, axis=1)[:, None]}
 
 
 @METHODS.register("lambert-low")
 def lambert_low_method(obs, valid, lights, context=None, **options):
     """Lambertian least squares on the selected (low-frequency) observations."""
     base, weights, b = select_observations(obs, valid, lights, **options)
-    status, used = base_status(weights, base)
+    status, used = base_status(weights, base, lights)
     rss = np.sum(weights * (obs - shading(b, lights)) ** 2, axis=1)
-    return {"b": b, "status": status, "used": used, "rss": rss, "params": np.linalg.norm(b, axis=1)[:, None]}
+    return {"b": b, "status": no_normal(status, b), "used": used, "rss": rss,
+            "params": np.linalg.norm(b, axis=1)[:, None]}
 
 
 class ModelAlternation:
@@ -91,7 +125,7 @@ class ModelAlternation:
     def __call__(self, obs, valid, lights, context=None, max_iter=20, tol=1e-7, **options):
         model = get_model(self.model_name)
         base, weights, b = select_observations(obs, valid, lights, **options)
-        status, used = base_status(weights, base)
+        status, used = base_status(weights, base, lights)
         n = unit(b)
         params = None
         rss = np.zeros(len(obs))
@@ -110,7 +144,8 @@ class ModelAlternation:
         # b's scale is arbitrary here (rho carries the albedo); report |b| as 1 x mean rho.
         albedo = np.nanmean(np.where(weights > 0, model.evaluate(params, Geometry.from_vectors(n, lights)), np.nan),
                             axis=1)
-        return {"b": n * np.nan_to_num(albedo, nan=1.0)[:, None], "status": status, "used": used, "rss": rss,
+        b = n * np.nan_to_num(albedo, nan=1.0)[:, None]
+        return {"b": b, "status": no_normal(status, b), "used": used, "rss": rss,
                 "params": np.asarray(params).reshape(len(obs), -1)}
 
 

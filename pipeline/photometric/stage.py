@@ -27,7 +27,8 @@ from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
 
 __all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "load_object_stack", "object_mask",
-           "light_model", "stage_params", "model_record", "STAGE", "LIGHT_MODELS", "PAPER_NAMES", "STATUS_COLOURS"]
+           "light_model", "stage_params", "model_record", "normals_warnings", "normals_summary", "STAGE",
+           "LIGHT_MODELS", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS", "WARN_SHARES"]
 
 STAGE = "normals"
 LIGHT_MODELS = ("auto", "directional", "near")
@@ -249,8 +250,54 @@ def record_normals(session, run, result, near_depth=None):
     if near_depth is not None and near_depth["passes"]:
         extra["near_depth"] = near_depth
     extra.update(model_record(result.shared_shape, result.options.get("shape_check"), result.options))
+    extra["selection"] = plain({k: result.options[k] for k in SELECTION_KEYS if k in result.options})
+    extra["warnings"] = normals_warnings(counts, len(run.frames), result.options)
     return session.record_stage(STAGE, run.params, run.inputs, outputs, seconds=time.time() - run.started,
                                 **extra)
+
+
+#: the solver's options the stage record keeps (after the policy filled them in)
+SELECTION_KEYS = ("selection", "t_low", "t_shadow", "reject_k", "consensus", "scale_floor", "shape_prior",
+                  "shared_shape")
+#: shares of the object's pixels above which the summary warns, per status
+WARN_SHARES = {"lambert_fallback": 0.2, "shared_shape": 0.2, "not_converged": 0.05, "too_few": 0.1,
+               "shadowed": 0.1, "ill_posed": 0.0}
+_WARNINGS = {
+    "lambert_fallback": "{share} of pixels fell back to Lambert: too few observations for the biquadratic "
+                        "model ({lights} lights)",
+    "shared_shape": "{share} of pixels were fitted with the object's shared shape alone: too few observations "
+                    "for the full model ({lights} lights)",
+    "not_converged": "{share} of pixels did not converge (their normal still turned after the last step)",
+    "too_few": "{share} of pixels had fewer than 3 usable observations: no normal",
+    "shadowed": "{share} of pixels were dark in every frame: no normal",
+    "ill_posed": "{count} pixel(s) have no normal: their observations determine none facing the camera "
+                 "(lights too close to coplanar there, or lit only indirectly)",
+}
+
+
+def normals_warnings(counts, lights, options):
+    """What a user should know of a normals run (list of str): statuses over their share of the
+    object's pixels (:data:`WARN_SHARES`), and a failed single-material check."""
+    pixels = max(sum(counts.values()), 1)
+    warnings = [_WARNINGS[name].format(share=f"{counts[name] / pixels:.0%}", count=counts[name], lights=lights)
+                for name, limit in WARN_SHARES.items() if counts.get(name) and counts[name] / pixels > limit]
+    check = options.get("shape_check") or {}
+    if "fallback" in check:
+        warnings.append(f"one shared shape does not fit the object (residual ratio {check['ratio']:g}, "
+                        f"{check['expected']:g} expected for one material): several materials? Each pixel "
+                        "was fitted with the Lambertian prior instead")
+    return warnings
+
+
+def normals_summary(record):
+    """One line of a normals record: pixels, the status shares, the light correction."""
+    pixels = max(record.get("pixels") or 0, 1)
+    shares = ", ".join(f"{name} {count / pixels:.1%}" for name, count in (record.get("status_counts") or {}).items()
+                       if count)
+    anchor = record.get("specular_anchor") or {}
+    cone = f"; lights' cone scaled by {anchor['cone_scale']:.3f} (specular anchor)" \
+        if anchor.get("anchor") == "corrected" else ""
+    return f"{record.get('pixels', 0)} pixels: {shares}{cone}"
 
 
 def _write_outputs(session, result):

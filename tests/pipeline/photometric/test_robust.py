@@ -1,0 +1,100 @@
+"""Issue 17's guarantees: a high-breakdown selection, no normal facing away, statuses that say
+what happened, and few lights handled by evidence rather than a fixed count."""
+
+import numpy as np
+import pytest
+
+from pipeline.photometric import STATUS, estimate_normals, normals_warnings
+from pipeline.photometric.selection import consensus_triplets, select_robust, shadow_weights
+
+from tests.pipeline.photometric.ps_synthetic import angular_error_deg, cook_torrance_images, hemisphere_lights, sphere_normals
+
+NARROW = hemisphere_lights(48, seed=5, min_elevation_deg=48)
+
+
+def lambertian_pixels(count, lights, seed):
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=(count, 3))
+    n[:, 2] = np.abs(n[:, 2]) + 2.0
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return n, 0.5 * np.clip(n @ lights.T, 0, None)
+
+
+def test_the_start_withstands_outliers_that_break_least_squares():
+    # 40 % of each pixel's observations are wrong (interreflection-bright or shadow-dark): a
+    # least-squares start breaks down there; the least-median start and its rejection do not
+    normals, obs = lambertian_pixels(300, NARROW, seed=1)
+    rng = np.random.default_rng(2)
+    wrong = rng.random(obs.shape) < 0.4
+    obs = np.where(wrong, obs * rng.choice([0.35, 2.2], size=obs.shape), obs)
+    base = shadow_weights(obs)
+    robust, b = select_robust(obs, NARROW, base)
+    plain, b_plain = select_robust(obs, NARROW, base, consensus=0)
+
+    def error(bb):
+        u = bb / np.linalg.norm(bb, axis=1, keepdims=True)
+        return np.degrees(np.arccos(np.clip(np.sum(u * normals, axis=1), -1, 1)))
+    # measured: 16 % of pixels more than 1 degree off (45 % from a least-squares start); of
+    # the wrong observations 16 % are kept (38 %)
+    assert np.mean(error(b) > 1) < 0.5 * np.mean(error(b_plain) > 1)
+    assert np.mean(robust[wrong] > 0) < 0.5 * np.mean(plain[wrong] > 0)
+
+
+def test_triplets_are_fixed_and_cover_small_light_sets():
+    assert np.array_equal(consensus_triplets(96), consensus_triplets(96))
+    assert len(consensus_triplets(96)) == 48 and len(consensus_triplets(6)) == 20   # all of C(6, 3)
+    assert len({tuple(t) for t in consensus_triplets(96)}) == 48
+
+
+def test_no_normal_faces_away_and_such_pixels_say_so():
+    normals, mask = sphere_normals(32)
+    images = cook_torrance_images(normals, mask, NARROW, roughness=0.3, noise=0.001)
+    # a block of pixels lit from behind only: what they show fits no normal facing the camera
+    block = (slice(12, 18), slice(12, 18))
+    images[:, block[0], block[1]] = 0.0
+    images[:3, block[0], block[1]] = 0.2
+    for method in ("biquadratic", "lambert-low", "lambert"):
+        result = estimate_normals(images, NARROW, mask, method=method)
+        solved = result.mask & ~np.isin(result.status, [STATUS["shadowed"], STATUS["too_few"], STATUS["ill_posed"]])
+        assert np.all(result.normals[solved][:, 2] > 0), method
+        assert not np.isnan(result.normals).any()
+        no_normal = np.isin(result.status, [STATUS["shadowed"], STATUS["too_few"], STATUS["ill_posed"]])
+        assert np.all(result.normals[no_normal] == 0)
+
+
+def test_coplanar_lights_at_a_pixel_are_ill_posed():
+    normals, obs = lambertian_pixels(50, NARROW, seed=3)
+    flat = NARROW.copy()
+    flat[:, 1] = 0.0                       # every light in the x-z plane
+    flat /= np.linalg.norm(flat, axis=1, keepdims=True)
+    images = (0.5 * np.clip(normals @ flat.T, 0, None)).T.reshape(len(flat), 5, 10)
+    with pytest.raises(Exception, match="rank < 3"):
+        estimate_normals(images, flat, np.ones((5, 10), bool))
+    # nearly coplanar: accepted for the image, ill-posed at the pixels whose lights are so
+    tilted = flat.copy()
+    tilted[0, 1] = 0.2
+    tilted /= np.linalg.norm(tilted, axis=1, keepdims=True)
+    result = estimate_normals(images, tilted, np.ones((5, 10), bool), method="lambert-low")
+    assert np.all(result.status == STATUS["ill_posed"]) and not result.normals.any()
+
+
+def test_few_lights_fit_the_shared_shape_rather_than_fall_back():
+    normals, mask = sphere_normals(48)
+    lights = hemisphere_lights(10, seed=7, min_elevation_deg=48)
+    images = cook_torrance_images(normals, mask, lights, roughness=0.3, noise=0.002)
+    default = estimate_normals(images, lights, mask, specular_anchor=False)
+    low = estimate_normals(images, lights, mask, method="lambert-low")
+    shares = {name: np.mean(default.status[mask] == code) for name, code in STATUS.items()}
+    assert shares["shared_shape"] + shares["ok"] > 0.5, shares        # not a fallback to Lambert
+    assert angular_error_deg(default.normals, normals, mask).mean() < angular_error_deg(low.normals, normals, mask).mean()
+
+
+def test_warnings_name_the_shares_that_matter():
+    counts = {"ok": 100, "lambert_fallback": 300, "not_converged": 2, "ill_posed": 3, "shared_shape": 0}
+    warnings = normals_warnings(counts, 12, {})
+    assert any("74% of pixels fell back to Lambert" in w and "12 lights" in w for w in warnings)
+    assert any("3 pixel(s) have no normal" in w for w in warnings)
+    assert not any("did not converge" in w for w in warnings)      # 0.5 %: under the 5 % bar
+    failed = normals_warnings({"ok": 10}, 96, {"shape_check": {"ratio": 20.0, "expected": 1.1,
+                                                              "fallback": "lambertian prior"}})
+    assert any("several materials" in w for w in failed)
