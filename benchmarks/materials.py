@@ -3,10 +3,11 @@
 ``python benchmarks/materials.py`` prints, for the simulated rig's two-material object (sharp
 and broad lobes, noisy and noise-free) and for one-material Cook-Torrance spheres, all under a
 DiLiGenT-like cone (64 lights, 48 degrees minimum elevation), the mean angular error (degrees)
-of the default estimator, of the same without the darkest-fraction fallback (the prior merely
-dropped when the check fails: ``fallback_t_low=None``) and of the paper's rule given explicitly
-(``t_low=0.35, shape_prior=0``), with the check's verdict. The specular anchor is off so that
-only the selection and the prior differ.
+of the default estimator (when the check fails, each pixel gets the Lambertian prior instead of
+the shared shape), of the shared shape forced (``shape_check=False``), of the Lambertian prior
+asked for (``shared_shape=False``) and of the paper's rule given explicitly (``t_low=0.35``,
+Lambertian prior), with the check's verdict. The specular anchor is off so that only the
+selection and the prior differ.
 """
 
 from pathlib import Path
@@ -17,8 +18,8 @@ from pipeline.photometric import estimate_normals
 from pipeline.experiments.synthetic import angular_error_deg, cook_torrance_images, hemisphere_lights, sphere_normals
 
 NARROW = hemisphere_lights(64, seed=3, min_elevation_deg=48)
-RUNS = (("default", {}), ("no fallback", {"fallback_t_low": None}),
-        ("paper t_low 0.35", {"t_low": 0.35, "shape_prior": 0}))
+RUNS = (("default", {}), ("shared shape", {"shape_check": False}), ("lambertian prior", {"shared_shape": False}),
+        ("paper t_low 0.35", {"t_low": 0.35, "shared_shape": False}))
 
 
 def two_materials(sharp, noise):
@@ -45,7 +46,7 @@ def report(name, images, normals, mask):
         if label == "default":
             check = result.options.get("shape_check") or {}
             verdict = ("one material" if check.get("one_material") else
-                       f"not one material ({check.get('fallback', 'prior dropped')})")
+                       f"not one material ({check.get('fallback', 'no fallback')})")
     print(f"{name:40s} " + " | ".join(cells) + f" | check: {verdict}", flush=True)
 
 
