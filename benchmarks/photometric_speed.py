@@ -25,18 +25,9 @@ from pipeline.experiments.synthetic import cook_torrance_images, hemisphere_ligh
 from pipeline.importers import read_diligent
 from pipeline.photometric import estimate_normals, kernels
 
+from diligent import pinv_seconds  # the one baseline, beside this script
+
 TARGET_RATIO = 100
-
-
-def pinv_seconds(images, lights, mask, repeat=7):
-    """Best wall seconds of the baseline ``pinv(L) @ I`` on the masked pixels (float64)."""
-    observations = images[:, mask].astype(np.float64)
-    best = np.inf
-    for _ in range(repeat):
-        start = time.perf_counter()
-        np.linalg.pinv(lights) @ observations
-        best = min(best, time.perf_counter() - start)
-    return best
 
 
 def timed(images, lights, mask, repeat, workers):

@@ -119,19 +119,10 @@ def _fit_shared(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol, d
                 moving_out, dof_out):
     """Every pixel of obs (N, K) under shared lights (K, 3): compact its used observations, fit."""
     n_pix, k = obs.shape
-    o, w = np.empty(k), np.empty(k)
-    lt, ht, yp = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 5))
+    o, w, lt, ht, yp = np.empty(k), np.empty(k), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 5))
     work, mats, a11, vecs = np.empty((4, k)), np.empty((3, 9, 9)), np.empty((11, 11)), np.empty((9, 11))
     for p in range(n_pix):
-        m = 0
-        for j in range(k):
-            if weights[p, j] != 0.0:
-                o[m], w[m] = obs[p, j], weights[p, j]
-                for i in range(3):
-                    lt[m, i], ht[m, i] = lights[j, i], h[j, i]
-                for i in range(5):
-                    yp[m, i] = ypow[j, i]
-                m += 1
+        m = _compact(obs[p], weights[p], lights, h, ypow, o, w, lt, ht, yp)
         _fit_one(o, w, lt, ht, yp, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, b_out[p],
                  c_out[p], rss_out, moving_out, dof_out, p)
 
@@ -140,21 +131,26 @@ def _fit_per_pixel(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol
                    rss_out, moving_out, dof_out):
     """:func:`_fit_shared` for per-pixel lights (N, K, 3), half vectors and y powers."""
     n_pix, k = obs.shape
-    o, w = np.empty(k), np.empty(k)
-    lt, ht, yp = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 5))
+    o, w, lt, ht, yp = np.empty(k), np.empty(k), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 5))
     work, mats, a11, vecs = np.empty((4, k)), np.empty((3, 9, 9)), np.empty((11, 11)), np.empty((9, 11))
     for p in range(n_pix):
-        m = 0
-        for j in range(k):
-            if weights[p, j] != 0.0:
-                o[m], w[m] = obs[p, j], weights[p, j]
-                for i in range(3):
-                    lt[m, i], ht[m, i] = lights[p, j, i], h[p, j, i]
-                for i in range(5):
-                    yp[m, i] = ypow[p, j, i]
-                m += 1
+        m = _compact(obs[p], weights[p], lights[p], h[p], ypow[p], o, w, lt, ht, yp)
         _fit_one(o, w, lt, ht, yp, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, b_out[p],
                  c_out[p], rss_out, moving_out, dof_out, p)
+
+
+def _compact(obs, weights, lights, h, ypow, o, w, lt, ht, yp):
+    """Copy one pixel's used observations (weight != 0) to the front of the scratch; their count."""
+    m = 0
+    for j in range(len(obs)):
+        if weights[j] != 0.0:
+            o[m], w[m] = obs[j], weights[j]
+            for i in range(3):
+                lt[m, i], ht[m, i] = lights[j, i], h[j, i]
+            for i in range(5):
+                yp[m, i] = ypow[j, i]
+            m += 1
+    return m
 
 
 def _fit_one(o, w, lt, ht, yp, m, b0, penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, b_out, c_out,
@@ -583,7 +579,7 @@ def _kth_smallest(a, n, kth):
     return a[kth]
 
 
-_PY = {name: globals()[name] for name in ("_fit_shared", "_fit_per_pixel", "_fit_one", "_iterate", "_geometry",
+_PY = {name: globals()[name] for name in ("_fit_shared", "_fit_per_pixel", "_compact", "_fit_one", "_iterate", "_geometry",
                                          "_tangents", "_coefficient_system", "_step_system", "_cost", "_rss_albedo",
                                          "_hat_trace", "_cholesky_solve", "_select_shared", "_select_per_pixel",
                                          "_select_one", "_consensus", "_lambert", "_solve3", "_kth_smallest")}
