@@ -175,8 +175,10 @@ class _Run:
         if error:
             self.failed[frame_id] = error
         else:
-            self.infos[frame_id] = {**info, "file": self.files[frame_id]}
+            # hashes before infos: a Ctrl-C between the two must not leave a frame counted as
+            # done without its hashes (the interrupt's own record lists the done frames' hashes)
             self.hashes.update({self.session.rel(path): digest for path, digest in hashes.items()})
+            self.infos[frame_id] = {**info, "file": self.files[frame_id]}
         self.unrecorded += 1
         if time.perf_counter() - self.saved_at >= RECORD_SHARE * self.save_cost:
             self.record_progress()
