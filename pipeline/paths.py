@@ -8,7 +8,17 @@ on where it lies. Paths are POSIX-style and relative to the session folder
 __all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "SPHERE_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP",
            "OBSERVATIONS", "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION",
            "REPORT", "TRUTH_LIGHTS", "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK", "DECODE_SCRATCH",
-           "TILES_SCRATCH", "SCRATCH"]
+           "TILES_SCRATCH", "SCRATCH", "linear_frame", "saturation_frame"]
+
+def linear_frame(frame_id):
+    """decode stage -> every later one: the decoded float32 EXR of one frame."""
+    return f"linear/{frame_id}.exr"
+
+
+def saturation_frame(frame_id):
+    """decode stage -> every later one: the saturation mask PNG of one frame."""
+    return f"linear/{frame_id}_sat.png"
+
 
 #: decode stage: the mean reference frames of one run (removed when it ends)
 DECODE_SCRATCH = "linear/.decode"

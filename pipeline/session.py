@@ -30,7 +30,7 @@ from . import __version__
 from . import lock as _lock
 from .atomic import atomic_write_bytes, atomic_write_text, sweep_tree
 from .errors import ManifestError, SessionError
-from .paths import SCRATCH
+from .paths import SCRATCH, linear_frame, saturation_frame
 from .yamlio import dump_yaml, load_yaml, plain
 
 __all__ = ["Session", "FORMAT", "FRAME_KINDS", "STAGES", "file_sha256", "now_iso"]
@@ -266,21 +266,29 @@ class Session:
         """Absolute path of a session-relative path, refusing anything outside the session."""
         check_relative(str(rel), f"{self.root / MANIFEST}: path")
         full = (self.root / rel).resolve()
-        if not full.is_relative_to(self.root.resolve()):
+        if not full.is_relative_to(self.real_root):
             raise SessionError(f"{self.root}: path {rel!r} resolves outside the session folder")
         return full
 
     def rel(self, path):
         """Session-relative POSIX path of an absolute path inside the session."""
-        return Path(path).resolve().relative_to(self.root.resolve()).as_posix()
+        return Path(path).resolve().relative_to(self.real_root).as_posix()
+
+    @property
+    def real_root(self):
+        """The session folder with its symlinks resolved, once: every path check compares with
+        it, and resolving it each time was a quarter of decoding a small frame."""
+        if getattr(self, "_real_root", None) is None or self._real_root[0] != self.root:
+            self._real_root = (self.root, self.root.resolve())
+        return self._real_root[1]
 
     def linear_path(self, frame):
         """Where the decoded float32 EXR of ``frame`` (dict or id) lives (checked like :meth:`path`)."""
-        return self.path(f"linear/{_frame_id(frame)}.exr")
+        return self.path(linear_frame(_frame_id(frame)))
 
     def saturation_path(self, frame):
         """Where the saturation mask PNG of ``frame`` (dict or id) lives (checked like :meth:`path`)."""
-        return self.path(f"linear/{_frame_id(frame)}_sat.png")
+        return self.path(saturation_frame(_frame_id(frame)))
 
     # ------------------------------------------------------------------ frames
     def frames(self, kind=None):
