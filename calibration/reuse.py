@@ -19,12 +19,17 @@ from pipeline.session import Session, file_sha256
 __all__ = ["reuse_calibration"]
 
 
-def _source(path):
+#: how many sessions a chain of --from may pass through before psrig stops following it
+CHAIN_LIMIT = 64
+
+
+def _source(session, path):
     """(Session, lights.yaml path) of the session to take the lights from."""
     try:
         other = Session.open(path)
     except PsrigError as exc:
         raise InputError(f"--from {path}: {exc}") from None
+    _check_chain(session, other, path)
     lights = other.path(LIGHTS)
     if not lights.is_file():
         raise InputError(f"--from {path}: it has no {LIGHTS}; calibrate it first (psrig run {path} --to calibrate)")
@@ -32,6 +37,29 @@ def _source(path):
     if record is not None and record.get("status", "ok") != "ok":
         raise InputError(f"--from {path}: its calibrate stage ended {record.get('status')!r}")
     return other, lights
+
+
+def _check_chain(session, other, path):
+    """Refuse a source that is this session, or takes its lights (through other sessions'
+    --from) from this session: such a calibration would never be up to date."""
+    if other.real_root == session.real_root:
+        raise InputError(f"--from {path}: that is this session; give another, calibrated session")
+    seen, current = {other.real_root}, other
+    for _ in range(CHAIN_LIMIT):
+        upstream = ((current.stage("calibrate") or {}).get("params") or {}).get("from_session")
+        if not upstream:
+            return
+        try:
+            current = Session.open(upstream)
+        except PsrigError:
+            return  # a vanished upstream is the source's own business, not a loop
+        if current.real_root == session.real_root:
+            raise InputError(f"--from {path}: takes its lights from this session (psrig calibrate ... --from "
+                             f"{session.root}); calibrate one of the two from its sphere frames")
+        if current.real_root in seen:
+            return  # a loop among other sessions: theirs to mend, and it never reaches this one
+        seen.add(current.real_root)
+    raise InputError(f"--from {path}: its lights come through more than {CHAIN_LIMIT} sessions' --from")
 
 
 def _frame_size(session):
@@ -55,7 +83,7 @@ def reuse_calibration(session, source, *, force=False, echo=print):
     -------
     LightSet or None (up to date)
     """
-    other, lights_path = _source(source)
+    other, lights_path = _source(session, source)
     params = {"from_session": str(Path(source).expanduser().absolute()),
               "from_session_sha256": file_sha256(lights_path)}
     if not force and session.stage_is_current("calibrate", params, {}):

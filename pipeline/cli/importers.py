@@ -5,6 +5,9 @@
                         [--intensities FILE] [--sphere-mask FILE] [--keep-all]
 """
 
+import argparse
+
+
 __all__ = ["register"]
 
 
@@ -20,15 +23,22 @@ def register(subparsers):
     dil.add_argument("session", metavar="SESSION", help="session folder to create")
     dil.set_defaults(func=_run_diligent)
     img = sources.add_parser("images", help="image files matched by glob patterns",
+                             usage="psrig import images SESSION --object GLOB [--sphere GLOB] [--outline GLOB] "
+                                   "[--mask FILE] [--lights FILE] [--intensities FILE] [--sphere-mask FILE] "
+                                   "[--keep-all]",
                              description="Import image files. Quote the patterns: psrig expands "
                                          "them and sorts the files naturally (img2 before img10); "
                                          "frame i is lit by light i.")
-    img.add_argument("session", metavar="SESSION", help="session folder to create")
-    # nargs "+": a pattern the shell expanded arrives as many files, and the handler says to quote it
-    img.add_argument("--object", required=True, metavar="GLOB", nargs="+",
-                     help="object frames: any image OpenImageIO reads or camera raw LibRaw reads")
-    img.add_argument("--sphere", metavar="GLOB", nargs="+", help="chrome-sphere frames (same lights)")
-    img.add_argument("--outline", metavar="GLOB", nargs="+",
+    # SESSION may come before or after the options: a pattern option takes several values (so
+    # that a pattern the shell expanded arrives whole and the handler can say to quote it), and
+    # the last such option hands back a SESSION it swallowed (_Patterns)
+    img.add_argument("session", metavar="SESSION", nargs="?", help="session folder to create")
+    img.add_argument("--object", required=True, metavar="GLOB", action=_Patterns, nargs="+",
+                     help="object frames (one quoted pattern): any image OpenImageIO reads or camera raw "
+                          "LibRaw reads")
+    img.add_argument("--sphere", metavar="GLOB", action=_Patterns, nargs="+",
+                     help="chrome-sphere frames (same lights)")
+    img.add_argument("--outline", metavar="GLOB", action=_Patterns, nargs="+",
                      help="evenly (room-)lit photo(s) of the sphere(s), rig lights off, same camera "
                           "position: calibration finds the sphere outlines on it")
     img.add_argument("--mask", metavar="FILE", help="object mask image (white = object)")
@@ -56,22 +66,45 @@ def _run_diligent(args):
     return 0
 
 
+class _Patterns(argparse.Action):
+    """A pattern option's values; it notes that it came last, as it may hold SESSION at its end."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, list(values))
+        namespace.last_patterns = self.dest
+
+
+def _session(args):
+    """SESSION, given before the options or swallowed by the last pattern option."""
+    if args.session is not None:
+        return args.session
+    values = getattr(args, getattr(args, "last_patterns", None) or "object", None) or []
+    if len(values) < 2:
+        from ..errors import InputError
+
+        raise InputError("give the SESSION folder to create, e.g. psrig import images SESSION --object 'img*.png'")
+    return values.pop()
+
+
 def _pattern(option, values):
-    """The one pattern given to ``option``; several values are a pattern the shell expanded."""
+    """The one pattern given to ``option``; several values are refused, said by their kind."""
     if values is None or len(values) == 1:
         return None if values is None else values[0]
     from ..errors import InputError
 
     shown = " ".join(values[:3]) + (" ..." if len(values) > 3 else "")
-    raise InputError(f"{option}: unrecognized arguments {shown} ({len(values)} files): the shell expanded the "
-                     f"pattern; quote it, e.g. {option} 'img*.png', so that psrig expands it (sorting it "
+    if any(char in value for value in values for char in "*?["):
+        raise InputError(f"{option}: {len(values)} patterns ({shown}); give one pattern per option "
+                         f"(e.g. {option} 'img*.png'), or move the frames under one name pattern")
+    raise InputError(f"{option}: {len(values)} files ({shown}), where psrig takes one pattern: if the shell "
+                     f"expanded it, quote it, e.g. {option} 'img*.png', so that psrig expands it (sorting it "
                      "naturally and skipping masks)")
 
 
 def _run_images(args):
     from ..importers import import_images, import_notes
 
-    session = import_images(args.session, _pattern("--object", args.object),
+    session = import_images(_session(args), _pattern("--object", args.object),
                             sphere_glob=_pattern("--sphere", args.sphere), mask=args.mask,
                             lights=args.lights, outline=_pattern("--outline", args.outline),
                             intensities=args.intensities,

@@ -297,7 +297,9 @@ def normals_summary(record):
     anchor = record.get("specular_anchor") or {}
     cone = f"; lights' cone scaled by {anchor['cone_scale']:.3f} (specular anchor)" \
         if anchor.get("anchor") == "corrected" else ""
-    return f"{record.get('pixels', 0)} pixels: {shares}{cone}"
+    left_out = record.get("lights_left_out") or []
+    flagged = f"; lights left out (flagged in {LIGHTS}): {', '.join(map(str, left_out))}" if left_out else ""
+    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{flagged}"
 
 
 def _write_outputs(session, result):

@@ -131,6 +131,20 @@ def test_calibrate_from_a_session_with_other_lights_is_refused(tmp_path, capsys)
     assert Session.open(tmp_path / "obj").stage("calibrate") is None
 
 
+def test_calibrate_from_itself_or_a_loop_is_refused(tmp_path, capsys):
+    """A session taking its lights from itself (or from one that takes them from it) would
+    rerun calibrate on every psrig run and nest its source deeper each time."""
+    _calibrated_and_objects(tmp_path, 6)
+    obj, cal = str(tmp_path / "obj"), str(tmp_path / "cal")
+    assert main(["calibrate", obj, "--from", obj]) == 1
+    assert "that is this session" in capsys.readouterr().err
+    assert main(["calibrate", obj, "--from", cal]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", cal, "--from", obj, "--force"]) == 1
+    assert "takes its lights from this session" in capsys.readouterr().err
+    assert Session.open(tmp_path / "cal").stage("calibrate")["params"].get("from_session") is None
+
+
 def _sphere_mask(path, scene):
     yy, xx = np.mgrid[0:240, 0:320]
     mask = np.zeros((240, 320), bool)

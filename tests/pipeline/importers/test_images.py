@@ -99,7 +99,23 @@ def test_an_unquoted_glob_is_told_to_quote_it(tmp_path, capsys):
     folder = frames(tmp_path / "obj", ["a.png", "b.png", "c.png"])
     code = main(["import", "images", str(tmp_path / "s"), "--object", *(str(p) for p in sorted(folder.iterdir()))])
     err = capsys.readouterr().err
-    assert code == 1 and "unrecognized arguments" in err and "quote it" in err and "Traceback" not in err
+    assert code == 1 and "3 files" in err and "quote it" in err and "Traceback" not in err
+    # the shell's expansion with SESSION last: the same advice, not "SESSION is required"
+    code = main(["import", "images", "--object", *(str(p) for p in sorted(folder.iterdir())), str(tmp_path / "s")])
+    err = capsys.readouterr().err
+    assert code == 1 and "3 files" in err and "quote it" in err
+
+
+def test_session_may_follow_the_quoted_pattern(tmp_path, capsys):
+    folder = frames(tmp_path / "obj", ["a.png", "b.png", "c.png"])
+    assert main(["import", "images", "--object", str(folder / "*.png"), str(tmp_path / "s")]) == 0
+    assert len(Session.open(tmp_path / "s").frames("object")) == 3
+    capsys.readouterr()
+    code = main(["import", "images", str(tmp_path / "t"), "--object", str(folder / "a*"), str(folder / "b*")])
+    err = capsys.readouterr().err
+    assert code == 1 and "2 patterns" in err and "one pattern per option" in err
+    assert main(["import", "images", "--object", str(folder / "*.png")]) == 1
+    assert "give the SESSION folder" in capsys.readouterr().err
 
 
 def test_files_that_cannot_be_decoded_are_refused_by_name(tmp_path):
