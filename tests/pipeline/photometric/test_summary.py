@@ -1,0 +1,13 @@
+"""The one line psrig run / psrig normals print per session."""
+
+from pipeline.photometric.stage import normals_summary
+
+
+def test_summary_line_has_shares_and_the_lights_left_out():
+    record = {"pixels": 200, "status_counts": {"ok": 150, "lambert_fallback": 50, "too_few": 0},
+              "lights_left_out": [4, 7]}
+    line = normals_summary(record)
+    assert line.startswith("200 pixels: ok 75.0%, lambert_fallback 25.0%")
+    assert "too_few" not in line
+    assert line.endswith("lights left out (flagged in calibration/lights.yaml): 4, 7")
+    assert "left out" not in normals_summary({**record, "lights_left_out": []})
