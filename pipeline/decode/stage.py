@@ -76,18 +76,30 @@ def _sizes(session, frames, binning, failed):
     return sizes
 
 
-def _reusable(session, previous, params, inputs, frame, reference_ids):
+def _reusable(session, previous, params, inputs, frame, references):
     """True when the previous run's outputs of ``frame`` are still valid (a previous run that was
-    interrupted included: its record lists the frames it finished)."""
-    if not previous or previous.get("params") != params:
+    interrupted included: its record lists the frames it finished); ``references`` are the
+    frames subtracted from it now (lit frames)."""
+    if not previous or previous.get("params") != params or not _same_raw(previous, inputs, frame):
         return False
-    if previous.get("inputs", {}).get(frame["file"]) != inputs.get(frame["file"]):
-        return False
-    # decoded from this very file (not one another frame's ``file:`` now names)
-    if (previous.get("frames") or {}).get(frame["id"], {}).get("file") != frame["file"]:
-        return False
-    if frame["kind"] in _LIT_KINDS and _previous_references(previous, frame["kind"]) != reference_ids:
-        return False
+    if frame["kind"] in _LIT_KINDS:
+        if _previous_references(previous, frame["kind"]) != [f["id"] for f in references]:
+            return False
+        # a re-shot dark or ambient frame changes what is subtracted: decode again
+        if not all(_same_raw(previous, inputs, f) for f in references):
+            return False
+    return _outputs_intact(session, previous, frame)
+
+
+def _same_raw(previous, inputs, frame):
+    """True when ``previous`` decoded ``frame`` from this very file (not one another frame's
+    ``file:`` now names) with this hash."""
+    return (previous.get("inputs", {}).get(frame["file"]) == inputs.get(frame["file"])
+            and (previous.get("frames") or {}).get(frame["id"], {}).get("file") == frame["file"])
+
+
+def _outputs_intact(session, previous, frame):
+    """True when the outputs of ``frame`` (dict or id) are on disk as ``previous`` recorded them."""
     recorded = previous.get("outputs", {})
     for path in (session.linear_path(frame), session.saturation_path(frame)):
         rel = session.rel(path)
@@ -144,15 +156,15 @@ class _Run:
         self.unrecorded = 0  # frames finished since the stage record was last saved
         self.saved_at, self.save_cost = 0.0, 0.0
 
-    def decode(self, frames, reference=None, reference_ids=None):
+    def decode(self, frames, reference=None, references=()):
         """Decode the frames whose outputs are not reusable; collect infos and failures."""
-        self.queue(frames, reference, reference_ids)
+        self.queue(frames, reference, references)
         self.decode_queued()
 
-    def queue(self, frames, reference=None, reference_ids=None):
+    def queue(self, frames, reference=None, references=()):
         """Plan the decoding of the frames whose outputs are not reusable (one pool for all)."""
         for frame in frames:
-            if _reusable(self.session, self.previous, self.params, self.inputs, frame, reference_ids):
+            if _reusable(self.session, self.previous, self.params, self.inputs, frame, references):
                 self.infos[frame["id"]] = self.previous.get("frames", {}).get(frame["id"], {})
                 for path in (self.session.linear_path(frame), self.session.saturation_path(frame)):
                     rel = self.session.rel(path)
@@ -204,9 +216,9 @@ class _Run:
             self.pool.shutdown()
             self.pool = None
 
-    def needs_work(self, frames, reference_ids):
+    def needs_work(self, frames, references):
         return any(not _reusable(self.session, self.previous, self.params, self.inputs, f,
-                                 reference_ids) for f in frames)
+                                 references) for f in frames)
 
 
 def _references(unlit, infos, lit_kind):
@@ -301,9 +313,9 @@ def _decode_all(session, frames, run, scratch):
         kind, references = _references(unlit, run.infos, lit_kind)
         reference_ids = [f["id"] for f in references]
         reference = None
-        if references and run.needs_work(group, reference_ids):
+        if references and run.needs_work(group, references):
             reference = _write_reference(session, references, kind, scratch / lit_kind)
-        run.queue(group, reference, reference_ids)
+        run.queue(group, reference, references)
         run.subtracted[lit_kind] = {"kind": kind, "frames": reference_ids}
     run.decode_queued()
 
