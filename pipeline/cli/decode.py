@@ -70,6 +70,8 @@ def run(args):
           f"({record.get('seconds', 0):.1f} s, subtracted: {subtracted})")
     for line in describe_record(record):
         print(f"decode: {line}")
+    for warning in record.get("warnings") or []:
+        print(f"decode: warning: {warning}")
     for frame_id, reason in record.get("failed", {}).items():
         print(f"psrig decode: error: {reason}", file=sys.stderr)
     return 0 if record["status"] == "ok" else 1

@@ -1,10 +1,10 @@
 """Decoding many frames in a process pool: one task = one frame file -> EXR + saturation PNG.
 
 Tasks are plain dicts so they cross process boundaries; a failing frame returns its reason
-instead of raising, so the other frames are still decoded. A ``merge`` task (the exposures
-of one bracket, decoded here or read back, -> their merged frame, :mod:`pipeline.decode.merge`)
-is written the same way. Workers return paths and sha256,
-never arrays: the bytes are hashed in memory as they are written, so nothing is read back.
+instead of raising, so the other frames are still decoded. A ``merge`` task (the exposures of
+one bracket, decoded here or read back, -> their merged frame, :mod:`pipeline.decode.merge`)
+is written the same way. Workers return paths and sha256, never arrays: the bytes are hashed
+in memory as they are written, so nothing is read back.
 
 A worker decodes straight into the bytes of the output EXR (uncompressed float32,
 :class:`pipeline.decode.exr.ExrBuffer`), writes them to a temporary file on a second thread

@@ -84,7 +84,7 @@ def describe_merged(merged):
     shares = ", ".join(f"{100 * share / total:.1f} % from {label}" for label, share in pixels.items())
     lines = [f"{total} exposure bracket(s) merged into one frame each, scaled to {reference}: of their pixels "
              f"{shares}; {100 * saturated / total:.2f} % saturated in every exposure (flagged)"]
-    return lines + [w for info in merged.values() for w in info.get("warnings") or []]
+    return lines
 
 
 def frames_decoded(record):

@@ -6,15 +6,16 @@ the mean dark frame when it has one. A frame that cannot be decoded is recorded 
 ``failed`` (status 'partial') while the others are decoded; a rerun decodes only what is
 missing or stale. Raw files are only read.
 
-Exposure brackets (:mod:`pipeline.brackets`): every exposure is decoded as a frame of its own,
-minus the ambient (else dark) frames shot at ITS shutter time (a lit exposure for which the
-session has references only at other shutter times fails, named: a dark signal grows with
-the exposure). Then the exposures of each group are merged into ``linear/<group>.exr``
-(:mod:`pipeline.decode.merge`), recorded under ``merged`` ({group: exposures, shutters,
-reference shutter, share of pixels from each, measured ratios}); a group with an exposure
-missing or failed is not merged (``failed``). Exposures and merges are each reused by the
-next run while their inputs hold, so a re-shot exposure re-decodes itself and re-merges its
-group only.
+Exposure brackets (:mod:`pipeline.brackets`): each exposure has the ambient (else dark) frames
+shot at ITS shutter time subtracted (a lit exposure for which the session has references only
+at other shutter times is refused, named: a dark signal grows with the exposure), and the
+exposures of each group are merged into ``linear/<group>.exr`` (:mod:`pipeline.decode.merge`),
+recorded under ``merged`` ({group: exposures, shutters, reference shutter, share of pixels
+from each, measured ratios}). Lit exposures are decoded and merged in one worker task (only
+the merge is written); dark, ambient and outline exposures are decoded to ``linear/`` first
+(references are means of them), then merged. A group with an exposure missing, failed or
+without a reference of its shutter is not merged (``failed``). Merges are reused by the next
+run while what they read is unchanged, so a re-shot exposure re-merges its group only.
 
 Defaults: the unbiased ``mosaic`` path at full size (``binning=1``, bilinear demosaic, which is
 linear and unbiased away from sharp edges). ``binning=2`` interpolates nothing and is faster
@@ -418,6 +419,9 @@ def _record(session, frames, run, seconds, status=None):
     subtracted = run.subtracted
     status = status or ("ok" if not run.failed else ("partial" if done else "failed"))
     extra = {"merged": merged} if merged else {}
+    warnings = [w for info in merged.values() for w in info.get("warnings") or []]
+    if warnings:  # where psrig run and the report look for them
+        extra["warnings"] = warnings
     return session.record_stage(
         "decode", run.params, run.inputs, outputs, status=status, seconds=seconds,
         failed={k: run.failed[k] for k in sorted(run.failed)},

@@ -17,6 +17,7 @@ from pipeline.session import Session, file_sha256
 from rig.capture import CaptureError, capture_session
 from rig.config import get_rig
 from rig.sim.rig import SimulatedRig
+from tests.pipeline.decode.test_interrupt import bracketed_session
 
 QUIET = {"progress": False, "echo": lambda line: None}
 RIG = """
@@ -180,45 +181,54 @@ def test_a_capture_stopped_mid_bracket_is_merged_once_resumed(tmp_path, capsys):
     assert (root / "linear" / "object_000.exr").stat().st_mtime_ns == first   # merged once
 
 
-def test_a_reshot_exposure_re_merges_its_group_only(root, capsys):
+def reshoot(root, frame_id, like):
+    """Decode, then shoot ``frame_id`` again (here: a copy of ``like``'s raw file as its new
+    file, the manifest updated as a re-shoot leaves it) and decode again; the names of the
+    files in linear/ the second decode rewrote."""
     assert main(["decode", str(root)]) == 0
     session = Session.open(root)
     before = {p.name: p.stat().st_mtime_ns for p in session.path("linear").glob("*")}
-    old = read_image(session.linear_path("object_003"))
-    # object_003's long exposure shot again (here: another valid raw file in its place)
-    new = session.path("raw/object_003_b1_again.dng")
-    new.write_bytes(session.path(session.frame("object_005_b1")["file"]).read_bytes())
+    new = session.path(f"raw/{frame_id}_again.dng")
+    new.write_bytes(session.path(session.frame(like)["file"]).read_bytes())
     digest = file_sha256(new)
 
-    def reshoot(data):
-        entry = next(f for f in data["frames"] if f["id"] == "object_003_b1")
-        entry.update(file="raw/object_003_b1_again.dng", sha256=digest)
-    edit(root, reshoot)
-    capsys.readouterr()
+    def change(data):
+        entry = next(f for f in data["frames"] if f["id"] == frame_id)
+        entry.update(file=f"raw/{frame_id}_again.dng", sha256=digest)
+    edit(root, change)
     assert main(["decode", str(root)]) == 0
     after = {p.name: p.stat().st_mtime_ns for p in session.path("linear").glob("*")}
-    changed = sorted(name for name in before if after[name] != before[name])
-    assert changed == ["object_003.exr", "object_003_sat.png"]
-    assert not np.array_equal(read_image(session.linear_path("object_003")), old)
+    return sorted(name for name in before if after[name] != before[name])
+
+
+def test_a_reshot_exposure_re_merges_its_group_only(root, capsys):
+    assert reshoot(root, "object_003_b1", like="object_005_b1") == ["object_003.exr", "object_003_sat.png"]
+    capsys.readouterr()
     assert main(["decode", str(root)]) == 0 and "up to date" in capsys.readouterr().out
 
 
-def test_a_reshot_ambient_exposure_re_merges_every_bracket_it_is_subtracted_from(root, capsys):
-    assert main(["decode", str(root)]) == 0
-    session = Session.open(root)
-    before = {p.name: p.stat().st_mtime_ns for p in session.path("linear").glob("*.exr")}
-    new = session.path("raw/ambient_000_b1_again.dng")   # the 1/15 s ambient frame shot again
-    new.write_bytes(session.path(session.frame("dark_000_b1")["file"]).read_bytes())
-    digest = file_sha256(new)
-
-    def reshoot(data):
-        entry = next(f for f in data["frames"] if f["id"] == "ambient_000_b1")
-        entry.update(file="raw/ambient_000_b1_again.dng", sha256=digest)
-    edit(root, reshoot)
-    assert main(["decode", str(root)]) == 0
-    after = {p.name: p.stat().st_mtime_ns for p in session.path("linear").glob("*.exr")}
-    changed = sorted(name for name in before if after[name] != before[name])
+def test_a_reshot_ambient_exposure_re_merges_every_bracket_it_is_subtracted_from(root):
+    changed = [name for name in reshoot(root, "ambient_000_b1", like="dark_000_b1") if name.endswith(".exr")]
     assert changed == ["ambient_000.exr", "ambient_000_b1.exr"] + [f"object_{k:03d}.exr" for k in range(LIGHTS)]
+
+
+@pytest.mark.parametrize("gain, outcome", [
+    (4.5, "warning: frame 'object_001': the exposure at 1/15 s is 4.500 x the one at 1/60 s, its shutter "
+          "time says 4.000 x; merged as the shutter times say"),
+    (1.0, "frame 'object_001' (exposures object_001_b0, object_001_b1): the exposure at 1/15 s is 1.00 x the "
+          "one at 1/60 s over"),
+])
+def test_exposures_off_their_shutter_ratio_are_said_or_refused(tmp_path, capsys, gain, outcome):
+    root = bracketed_session(tmp_path / "s", groups=2, shape=(64, 64), gain=gain)
+    code = main(["decode", str(root)])
+    out, err = capsys.readouterr()
+    assert outcome in (out if gain > 1 else err), (out, err)
+    assert code == (0 if gain > 1 else 1) and "Traceback" not in err
+    record = Session.open(root).stage("decode")
+    if gain > 1:
+        assert record["warnings"] and record["merged"]["object_001"]["ratios"][0]["measured"] == pytest.approx(4.5, rel=1e-3)
+    else:
+        assert "object_001" not in record["merged"] and "do not scale" in record["failed"]["object_001"]
 
 
 @pytest.mark.slow

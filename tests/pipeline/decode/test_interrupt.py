@@ -174,27 +174,28 @@ def test_sigkill_of_psrig_run_during_decode_leaves_no_process(tmp_path, kills, s
 
 # -- exposure brackets ------------------------------------------------------------------------
 
-BRACKET = (("1/60", 1), ("1/15", 4))   # shutter as recorded, and how much more light it gathers
+SHUTTERS = ("1/60", "1/15")   # as a bracketed capture records them
 
 
-def bracketed_session(root, groups=12, shape=SHAPE):
+def bracketed_session(root, groups=12, shape=SHAPE, gain=4):
     """A bracketed session: a dark frame and ``groups`` object frames, each shot at 1/60 and
-    1/15 s (the long exposure 4 x the light, clipped at white)."""
+    1/15 s (the long exposure ``gain`` x the light, clipped at white: 4 as the shutter times
+    say)."""
     rng = np.random.default_rng(8)
     session = Session.create(root)
     signal = rng.integers(80, 4500, size=shape).astype(np.int64)   # 1/15 s clips the top fifth
 
     def add(kind, light, name, mosaic, n):
-        bracket = {"group": name, "index": n, "shutter": BRACKET[n][0], "of": len(BRACKET)}
+        bracket = {"group": name, "index": n, "shutter": SHUTTERS[n], "of": len(SHUTTERS)}
         session.add_frame(kind, write_dng(mosaic), light=light, frame_id=f"{name}_b{n}", save=False,
                           bracket=bracket)
 
-    for n, _ in enumerate(BRACKET):
+    for n, _ in enumerate(SHUTTERS):
         add("dark", None, "dark_000", np.full(shape, 512, np.uint16), n)
     for light in range(groups):
-        for n, (_, gain) in enumerate(BRACKET):
+        for n, scale in enumerate((1, gain)):
             add("object", light, f"object_{light:03d}",
-                np.minimum(512 + (signal + light) * gain, 16383).astype(np.uint16), n)
+                np.minimum(512 + (signal + light) * scale, 16383).astype(np.uint16), n)
     session.save()
     return session.root
 
