@@ -14,12 +14,16 @@ a group's id is no other frame's, and a kind's frames are all bracketed or none 
 one kind must end on one scale).
 """
 
+import re
 from dataclasses import dataclass
 
 from .errors import ManifestError
 
 __all__ = ["BracketGroup", "bracket_groups", "check_brackets", "stage_view", "shutter_seconds",
-           "frame_shutter", "reference_shutter", "same_shutter", "format_seconds"]
+           "frame_shutter", "reference_shutter", "same_shutter", "format_seconds", "FRAME_ID"]
+
+#: What a frame id (and so a bracket group's, which names the merged frame's files) may be.
+FRAME_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 #: two recorded shutter times closer than this (relative) are the same one
 _SAME = 1e-6
@@ -162,7 +166,7 @@ def _check_entry(frame, where):
     if not isinstance(bracket, dict):
         raise ManifestError(f"{where}.bracket: expected a mapping (group, index, shutter, of), got {bracket!r}")
     group, index, of = bracket.get("group"), bracket.get("index"), bracket.get("of")
-    if not isinstance(group, str) or not group:
+    if not isinstance(group, str) or not FRAME_ID.match(group):
         raise ManifestError(f"{where}.bracket.group: expected the id of the frame bracketed, got {group!r}")
     if isinstance(index, bool) or not isinstance(index, int) or index < 0:
         raise ManifestError(f"{where}.bracket.index: expected a number >= 0, got {index!r}")

@@ -30,7 +30,7 @@ import yaml
 from . import __version__
 from . import lock as _lock
 from .atomic import atomic_write_bytes, atomic_write_text, sweep_tree
-from .brackets import check_brackets, stage_view
+from .brackets import FRAME_ID, check_brackets, stage_view
 from .errors import ManifestError, SessionError
 from .paths import SCRATCH
 from .yamlio import dump_yaml, load_yaml, plain
@@ -51,7 +51,6 @@ SWEPT = ("", "linear", "calibration", "normals", "depth", "report", "truth")
 #: Status values of a stage record ('incomplete': a decode still running, or interrupted).
 STATUSES = ("ok", "partial", "failed", "incomplete")
 _SHA_RE = re.compile(r"^[0-9a-f]{64}$")
-_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
 def now_iso():
@@ -597,7 +596,7 @@ def _validate_frame(frame, where, seen):
     for key in ("id", "kind", "file", "sha256"):
         if key not in frame:
             raise ManifestError(f"{where}: missing key '{key}'")
-    if not isinstance(frame["id"], str) or not _ID_RE.match(frame["id"]):
+    if not isinstance(frame["id"], str) or not FRAME_ID.match(frame["id"]):
         raise ManifestError(f"{where}.id: {frame['id']!r} is not a valid frame id")
     if frame["id"] in seen:
         raise ManifestError(f"{where}.id: duplicate frame id {frame['id']!r}")

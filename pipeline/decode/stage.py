@@ -213,11 +213,13 @@ class _Run:
         if error:
             self.failed[frame_id] = error
         else:
+            # hashes before infos: a Ctrl-C between the two must not leave a frame counted as
+            # done without its hashes (the interrupt's own record lists the done frames' hashes)
+            self.hashes.update({self.session.rel(path): digest for path, digest in hashes.items()})
             if frame_id in self.merge_inputs:
                 self.merged[frame_id] = {**info, "inputs_sha256": self.merge_inputs[frame_id]}
             else:
                 self.infos[frame_id] = {**info, "file": self.files[frame_id]}
-            self.hashes.update({self.session.rel(path): digest for path, digest in hashes.items()})
         self.unrecorded += 1
         if time.perf_counter() - self.saved_at >= RECORD_SHARE * self.save_cost:
             self.record_progress()

@@ -69,6 +69,7 @@ def test_unbracketed_frames_are_seen_as_they_are(tmp_path):
     (lambda f: f[0]["bracket"].update(index=-1), "frames[0].bracket.index"),
     (lambda f: f[1]["bracket"].update(of=1), "frames[1].bracket.of"),
     (lambda f: f[0].update(bracket="yes"), "frames[0].bracket: expected a mapping"),
+    (lambda f: f[0]["bracket"].update(group="../elsewhere"), "frames[0].bracket.group: expected the id"),
 ])
 def test_a_bracket_that_cannot_be_merged_is_refused_naming_its_frames(change, message):
     frames = bracketed("object", "object_000", 0)
