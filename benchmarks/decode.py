@@ -11,7 +11,12 @@ gives the EXR bytes per frame and how the frames were written (``--compression``
 ZIP where a sample shrinks by a quarter); ``--compare`` times auto, zip and none in turn in
 this process, so their ratios share the machine's load.
 
-    python benchmarks/decode.py [--frames 4] [--jobs 2] [--repeat 3] [--compression auto] [--compare]
+A bracketed session (``--bracket`` alone, or last in a full run): the same scene's ``--frames``
+lights each shot at 1/60 and 1/15 s (the long exposure 4 x the signal, clipped at white) and
+decoded with their merges, against the same lights shot once, decoded in turn in this process
+(``--repeat`` rounds): seconds per light, the ratio, and the EXR bytes per light.
+
+    python benchmarks/decode.py [--frames 4] [--jobs 2] [--repeat 3] [--compression auto] [--compare] [--bracket]
 """
 
 import argparse
@@ -85,6 +90,49 @@ def session_timing(folder, frames, jobs, binning, repeat, compression="auto"):
           "every run: " + " ".join(f"{wall / frames:.3f}" for wall in walls) + " s/frame")
 
 
+BRACKET = (("1/60", 1), ("1/15", 4))   # shutter as recorded, and the light it gathers
+
+
+def bracketed_session(root, frames):
+    """``frames`` lights, each at every shutter of :data:`BRACKET` (the signal above black
+    scaled, clipped at white): frames ``object_<k>_b<n>`` with their ``bracket`` entries."""
+    session = Session.create(root)
+    for light in range(frames):
+        signal = mosaic(light + 1).astype(np.int64) - 512
+        for n, (shutter, gain) in enumerate(BRACKET):
+            data = write_dng(np.clip(512 + signal * gain, 0, 16383).astype(np.uint16))
+            session.add_frame("object", data, light=light, frame_id=f"object_{light:03d}_b{n}", save=False,
+                              bracket={"group": f"object_{light:03d}", "index": n, "shutter": shutter,
+                                       "of": len(BRACKET)})
+    session.save()
+    return session
+
+
+def bracket_timing(folder, frames, jobs, repeat, compression="auto"):
+    """Decode (exposures + merges) of a bracketed session against the same lights shot once."""
+    plain = Session.create(Path(folder) / "plain")
+    for light in range(frames):
+        plain.add_frame("object", write_dng(mosaic(light + 1)), light=light, save=False)
+    plain.save()
+    sessions = {"single": plain, "bracketed": bracketed_session(Path(folder) / "bracketed", frames)}
+    walls = {name: [] for name in sessions}
+    records = {}
+    for _ in range(repeat):   # interleaved: both see about the same load
+        for name, session in sessions.items():
+            _, _, records[name] = best_of(1, lambda: decode_session(
+                session, jobs=jobs, progress=False, force=True, compression=compression), walls[name])
+            assert records[name]["status"] == "ok", records[name]["failed"]
+    best = {name: min(times) for name, times in walls.items()}
+    merged = records["bracketed"]["merged"]
+    taken = np.mean([info["from"][f"{group}_b0"] for group, info in merged.items()])
+    print(f"bracketed decode, {frames} lights x {len(BRACKET)} exposures + {len(merged)} merges, jobs {jobs}: "
+          f"{best['bracketed'] / frames:.3f} s per light against {best['single'] / frames:.3f} s shot once: "
+          f"{best['bracketed'] / best['single']:.2f} x; EXR {records['bracketed']['linear_bytes'] / frames / 1e6:.1f} "
+          f"MB per light against {records['single']['linear_bytes'] / frames / 1e6:.1f}; "
+          f"{100 * taken:.1f} % of the pixels from the short exposure; every run (s): "
+          + ", ".join(f"{name} " + " ".join(f"{w:.2f}" for w in times) for name, times in walls.items()))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=4)
@@ -93,6 +141,8 @@ def main():
     parser.add_argument("--compression", default="auto", choices=("auto", "zip", "none"))
     parser.add_argument("--compare", action="store_true",
                         help="only the jobs-N session, with auto, zip and none in turn (--repeat rounds)")
+    parser.add_argument("--bracket", action="store_true",
+                        help="only the bracketed session against the same lights shot once (--repeat rounds)")
     args = parser.parse_args()
     print(f"cores {os.cpu_count()}, load average before {os.getloadavg()[0]:.2f} "
           "(other processes on the machine slow every figure below)")
@@ -102,10 +152,14 @@ def main():
                 for compression in ("auto", "zip", "none"):
                     session_timing(folder, args.frames, args.jobs, 1, 1, compression)
             return
+        if args.bracket:
+            bracket_timing(folder, args.frames, args.jobs, args.repeat, args.compression)
+            return
         frame_timings(folder, args.repeat)
         for binning in (1, 2):
             session_timing(folder, args.frames, args.jobs, binning, args.repeat, args.compression)
         session_timing(folder, args.frames, 1, 1, args.repeat, args.compression)
+        bracket_timing(folder, args.frames, args.jobs, args.repeat, args.compression)
     print(f"load average after {os.getloadavg()[0]:.2f}")
 
 

@@ -91,7 +91,7 @@ def reuse_calibration(session, source, *, force=False, echo=print):
         return None
     start = time.perf_counter()
     lights = read_lights_yaml(lights_path)
-    objects = sorted(session.frames("object"), key=lambda f: f["light"])
+    objects = sorted(session.stage_frames("object"), key=lambda f: f["light"])
     if not objects:
         raise StageError(f"{session.root}: no object frames to give the lights of {source} to")
     if len(lights) != len(objects) or objects[-1]["light"] != len(lights) - 1:

@@ -120,7 +120,7 @@ def _session_outlines(session, circle, sphere_mask, outline):
     circle or a mask is given, or ``outline`` is False."""
     if outline is not None or circle is not None or sphere_mask is not None:
         return []
-    return session.frames("outline")
+    return session.stage_frames("outline")
 
 
 def _gamma(session, frame):
@@ -251,7 +251,8 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
         if circle is not None or sphere_mask is not None or outline:
             raise InputError("--from: the lights come from the other session; give no circle, mask or outline")
         return reuse_calibration(session, from_session, force=force, echo=echo)
-    frames = sorted(session.frames("sphere"), key=lambda f: f["light"])
+    # one frame per light and kind: an exposure bracket is its merged frame
+    frames = sorted(session.stage_frames("sphere"), key=lambda f: f["light"])
     if not frames:
         if session.path(LIGHTS).is_file():
             echo(f"{session.root}: no sphere frames; keeping the imported {LIGHTS}")
@@ -273,7 +274,7 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
         rels.append(stored_mask)
     # which light each frame was shot under, and the object frames' names in lights.lp
     inputs = {**session.hash_inputs(rels), **session.manifest_input(
-        "calibrate", needed + session.frames("object"), ("id", "kind", "light", "file", "source"))}
+        "calibrate", needed + session.stage_frames("object"), ("id", "kind", "light", "file", "source"))}
     if not force and session.stage_is_current("calibrate", params, inputs):
         echo(f"{session.root}: calibrate is up to date")
         return None
@@ -302,7 +303,7 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
                       source=f"chrome sphere calibration ({result.method}); {note}",
                       extra=_extra(result, note))
     write_lights_yaml(session.path(LIGHTS), lights)
-    objects = {f["light"]: f for f in session.frames("object")}
+    objects = {f["light"]: f for f in session.stage_frames("object")}
     names = [objects[i].get("source", objects[i]["file"].split("/")[-1]) if i in objects else frames[k]["id"]
              for k, i in enumerate(order)]
     write_lp(session.path(LIGHTS_LP), names, directions)

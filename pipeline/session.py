@@ -6,7 +6,8 @@ A session is the unit every stage reads and writes::
     SESSION/
       session.yaml   manifest
       raw/           frames as captured; never modified once written
-      linear/        decoded float32 frames (<frame id>.exr) + saturation masks (<id>_sat.png)
+      linear/        decoded float32 frames (<frame id>.exr) + saturation masks (<id>_sat.png);
+                     an exposure bracket's exposures and their merge (<group>.exr)
       calibration/   lights.yaml, lights.lp, overlays
       normals/  depth/  report/
       truth/         ground truth when known (simulated or imported sessions)
@@ -29,6 +30,7 @@ import yaml
 from . import __version__
 from . import lock as _lock
 from .atomic import atomic_write_bytes, atomic_write_text, sweep_tree
+from .brackets import FRAME_ID, check_brackets, stage_view
 from .errors import ManifestError, SessionError
 from .paths import SCRATCH, linear_frame, saturation_frame
 from .yamlio import dump_yaml, load_yaml, plain
@@ -49,7 +51,6 @@ SWEPT = ("", "linear", "calibration", "normals", "depth", "report", "truth")
 #: Status values of a stage record ('incomplete': a decode still running, or interrupted).
 STATUSES = ("ok", "partial", "failed", "incomplete")
 _SHA_RE = re.compile(r"^[0-9a-f]{64}$")
-_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
 def now_iso():
@@ -295,6 +296,18 @@ class Session:
         """Frames of the manifest (dicts), optionally of one kind, in manifest order."""
         frames = self.manifest["frames"]
         return [f for f in frames if kind is None or f["kind"] == kind]
+
+    def stage_frames(self, kind=None):
+        """Frames as the stages after decode read them, optionally of one kind, in manifest order.
+
+        The exposures of an exposure bracket (frames with ``bracket: {group, ...}``) are ONE
+        frame here, whose id is the group's: decode merges them into its
+        :meth:`linear_path` / :meth:`saturation_path`. It carries ``kind``, ``light``,
+        ``file`` (its first exposure's), ``merged_from`` (the exposures' ids) and
+        ``shutters`` (:meth:`pipeline.brackets.BracketGroup.as_frame`). Every other frame is
+        its manifest dict, as :meth:`frames` gives it.
+        """
+        return [f for f in stage_view(self.manifest["frames"]) if kind is None or f["kind"] == kind]
 
     def frame(self, frame_id):
         """The frame dict with this id."""
@@ -555,6 +568,7 @@ def validate_manifest(manifest, where):
         if other != frame["id"]:
             raise ManifestError(f"{where}: frames[{i}].file: frames {other!r} and {frame['id']!r} both "
                                 f"name {frame['file']!r}; every frame has a raw file of its own")
+    check_brackets(frames, where)
     for name, record in manifest["stages"].items():
         _validate_stage(record, f"{where}: stages.{name}")
     for key, rel in manifest["truth"].items():
@@ -590,7 +604,7 @@ def _validate_frame(frame, where, seen):
     for key in ("id", "kind", "file", "sha256"):
         if key not in frame:
             raise ManifestError(f"{where}: missing key '{key}'")
-    if not isinstance(frame["id"], str) or not _ID_RE.match(frame["id"]):
+    if not isinstance(frame["id"], str) or not FRAME_ID.match(frame["id"]):
         raise ManifestError(f"{where}.id: {frame['id']!r} is not a valid frame id")
     if frame["id"] in seen:
         raise ManifestError(f"{where}.id: duplicate frame id {frame['id']!r}")
@@ -623,6 +637,7 @@ _RECORD_FIELDS = {
     "subtracted": (dict, "a mapping"), "frames_not_raw": (list, "a list of frame ids"),
     "warnings": (list, "a list"), "status_counts": (dict, "a mapping of counts"),
     "pixels": (int, "a number of pixels"), "flagged": (dict, "a mapping of lights to reasons"),
+    "merged": (dict, "a mapping of bracket groups"),
 }
 
 

@@ -18,7 +18,9 @@ def register(subparsers):
         "decode", help="raw frames -> linear float32 EXR + saturation masks",
         description="Decode every frame of a session into linear/<id>.exr (float32, 1.0 = white "
                     "level minus black) and linear/<id>_sat.png (255 = saturated). The mean "
-                    "ambient (else dark) frame is subtracted from lit frames.")
+                    "ambient (else dark) frame is subtracted from lit frames; the exposures of "
+                    "a bracket (exposure: {bracket: [...]}) are merged into linear/<frame>.exr, "
+                    "each pixel from the longest unsaturated one.")
     parser.add_argument("session", metavar="SESSION", help="session folder")
     parser.add_argument("--method", choices=("mosaic", "postprocess"), default="mosaic",
                         help="mosaic: from the raw mosaic with per-channel black levels, "
@@ -51,7 +53,7 @@ def _gamma(text):
 
 def run(args):
     """Handler: decode, print a summary, exit 1 when a frame failed."""
-    from ..decode import decode_session, describe_record
+    from ..decode import decode_session, describe_record, frames_decoded
 
     session = open_session(args.session, args)
     before = session.stage("decode")
@@ -59,7 +61,7 @@ def run(args):
                             channels="grey" if args.grey else "rgb", binning=args.binning,
                             gamma=args.gamma, compression=args.compression, half=args.half,
                             jobs=args.jobs, force=args.force)
-    done = len(record.get("frames", {}))
+    done = frames_decoded(record)
     if record is before:
         print(f"decode: up to date ({done} frames)")
         return 0
@@ -68,6 +70,8 @@ def run(args):
           f"({record.get('seconds', 0):.1f} s, subtracted: {subtracted})")
     for line in describe_record(record):
         print(f"decode: {line}")
+    for warning in record.get("warnings") or []:
+        print(f"decode: warning: {warning}")
     for frame_id, reason in record.get("failed", {}).items():
         print(f"psrig decode: error: {reason}", file=sys.stderr)
     return 0 if record["status"] == "ok" else 1

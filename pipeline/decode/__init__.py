@@ -7,16 +7,18 @@ Where things live: :mod:`.formats` (image or raw, by content), :mod:`.frame` (on
 :data:`RAW_METHODS`, and the other sensor layouts), :mod:`.image` (anything OpenImageIO reads),
 :mod:`.transfer` (the transfer function a file declares), :mod:`.exr` (the linear EXR built in
 numpy, uncompressed or ZIP), :mod:`.pool` (worker processes), :mod:`.stage` (the ``decode``
-stage), :mod:`.record` (what its record says was assumed). Transfer functions are in
-:mod:`pipeline.gamma`.
+stage), :mod:`.record` (what its record says was assumed), :mod:`.hdr` (merging an exposure
+bracket) and :mod:`.merge` (the stage's merge tasks). Transfer functions are in
+:mod:`pipeline.gamma`; which frames are one bracket, :mod:`pipeline.brackets`.
 Measurements: docs/decoding.md.
 """
 
 from .formats import FrameFormat, frame_format, readable_formats
 from .frame import COMPRESSIONS, check_options, decode_frame, frame_size
 from .raw import METHODS as RAW_METHODS
-from .record import describe as describe_record, recorded_kwargs
+from .record import describe as describe_record, frames_decoded, recorded_kwargs
 from .stage import REFERENCE_KINDS, decode_session
 
 __all__ = ["decode_session", "decode_frame", "frame_size", "check_options", "RAW_METHODS", "REFERENCE_KINDS",
-           "COMPRESSIONS", "frame_format", "FrameFormat", "readable_formats", "describe_record", "recorded_kwargs"]
+           "COMPRESSIONS", "frame_format", "FrameFormat", "readable_formats", "describe_record", "frames_decoded",
+           "recorded_kwargs"]

@@ -1,8 +1,10 @@
 """Decoding many frames in a process pool: one task = one frame file -> EXR + saturation PNG.
 
 Tasks are plain dicts so they cross process boundaries; a failing frame returns its reason
-instead of raising, so the other frames are still decoded. Workers return paths and sha256,
-never arrays: the bytes are hashed in memory as they are written, so nothing is read back.
+instead of raising, so the other frames are still decoded. A ``merge`` task (the exposures of
+one bracket, decoded here or read back, -> their merged frame, :mod:`pipeline.decode.merge`)
+is written the same way. Workers return paths and sha256, never arrays: the bytes are hashed
+in memory as they are written, so nothing is read back.
 
 A worker decodes straight into the bytes of the output EXR (uncompressed float32,
 :class:`pipeline.decode.exr.ExrBuffer`), writes them to a temporary file on a second thread
@@ -27,8 +29,10 @@ from ..atomic import atomic_commit, atomic_write_begin, atomic_write_bytes, disc
 from .exr import ExrBuffer, encode_exr
 from .formats import frame_format
 from .frame import check_options, decode_frame
+from .merge import merge_linear
 from .raw import decode_raw
 from ..errors import ImageFileError, PsrigError
+from ..imageio import read_image, read_mask
 from ..lock import lifeline, watch_lifeline
 from ..progress import progress
 
@@ -121,9 +125,13 @@ def _subtract(frame_id, planes, saturated, reference):
 
 
 def _decode(task):
-    """Decode a task's frame into an :class:`ExrBuffer`; returns (exr, planes, saturated, info)."""
+    """Decode a task's frame (or merge its exposures: a ``merge`` task) into an
+    :class:`ExrBuffer`; returns (exr, planes, saturated, info)."""
     options = check_options(**task["options"])
     height, width = task["size"]
+    if "merge" in task:
+        exposures = [_exposure(member, options, (height, width)) for member in task["merge"]]
+        return _buffered(*merge_linear(task, exposures), (height, width))
     source = task["source"]
     if (options["method"], options["channels"], options["binning"]) == ("mosaic", "rgb", 1) \
             and os.path.isfile(source) and frame_format(source).kind == "raw":
@@ -136,9 +144,36 @@ def _decode(task):
     linear, saturated, info = decode_frame(source, **{k: options[k] for k in ("method", "channels",
                                                                               "binning", "gamma")})
     _check_finite(linear, source)
-    if tuple(linear.shape[:2]) != (height, width):
-        raise PsrigError(f"decoded to {linear.shape[:2]}, expected {(height, width)} like the "
-                         "other frames")
+    return _buffered(linear, saturated, info, (height, width))
+
+
+def _exposure(member, options, size):
+    """(linear (H, W, C), saturated (H, W), info) of one exposure of a merge task: decoded
+    from its raw file minus its reference, or read from its decoded outputs."""
+    if "linear" in member:
+        return read_image(member["linear"]), read_mask(member["saturation"]), {}
+    source = member["source"]
+    linear, saturated, info = decode_frame(source, **{k: options[k] for k in ("method", "channels",
+                                                                              "binning", "gamma")})
+    if not info.get("raw"):  # raw integers are finite: the check is for float image files
+        _check_finite(linear, source)
+    _check_size(linear, size)
+    if member.get("reference"):
+        planes = [linear[:, :, channel] for channel in range(linear.shape[2])]
+        saturated = _subtract(member["id"], planes, saturated, member["reference"])
+    return linear, saturated, {**info, "file": member["file"]}
+
+
+def _check_size(linear, size):
+    if tuple(linear.shape[:2]) != tuple(size):
+        raise PsrigError(f"decoded to {linear.shape[:2]}, expected {tuple(size)} like the other frames")
+
+
+def _buffered(linear, saturated, info, size):
+    """(exr, planes, saturated, info) of a decoded (H, W, C) frame copied into this process's
+    reusable :class:`ExrBuffer`."""
+    height, width = size
+    _check_size(linear, size)
     names = _RGB if linear.shape[2] == 3 else ("Y",)
     exr = _exr_buffer(height, width, names)
     exr.fill(linear, names)
@@ -181,7 +216,10 @@ def decode_task(task, *, commit=True):
     task : dict
         ``id``, ``source`` (frame file), ``linear`` and ``saturation`` (output paths),
         ``options`` (for :func:`decode_frame`), ``reference`` (None or dict with ``kind``,
-        ``mean`` and ``saturated`` .npy paths) and ``size`` (expected (H, W)).
+        ``mean`` and ``saturated`` .npy paths) and ``size`` (expected (H, W)); or, instead of
+        ``source`` and ``reference``, ``merge`` (the exposures of a bracket, each decoded
+        here or read from its outputs) and ``reference_shutter``
+        (:func:`pipeline.decode.merge.merge_task`).
     commit : bool
         True: the outputs are in place (fsync, rename) on return. False: they are written to
         temporary files beside them, returned in ``temps`` for :func:`pipeline.atomic.atomic_commit`.

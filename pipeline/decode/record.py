@@ -6,10 +6,11 @@ and decoding path of a raw file, how its EXR was written. :func:`assumed` gather
 stage record, :func:`describe` into the lines ``psrig decode`` and ``psrig run`` print.
 """
 
+from ..brackets import format_seconds
 from ..gamma import NAMES
 from .transfer import describe_transfer
 
-__all__ = ["assumed", "describe", "recorded_kwargs"]
+__all__ = ["assumed", "describe", "describe_merged", "frames_decoded", "recorded_kwargs"]
 
 
 def assumed(infos):
@@ -59,12 +60,38 @@ def describe(record):
     for sensor, ids in (record.get("postprocessed") or {}).items():
         lines.append(f"{len(ids)} raw frame(s) from a {sensor} sensor decoded by LibRaw's linear postprocess "
                      "(the mosaic path is for Bayer sensors; dark values are clipped at black)")
+    lines += describe_merged(record.get("merged"))
     if record.get("linear_bytes"):
         counts = record.get("compression") or {}
         done = sum(counts.values())
         lines.append(f"linear/: {record['linear_bytes'] / 1e6:.1f} MB for {done} frame(s) "
                      f"({', '.join(f'{n} {kind}' for kind, n in sorted(counts.items()))})")
     return lines
+
+
+def describe_merged(merged):
+    """Lines saying what a decode record's ``merged`` ({group: info}) did."""
+    if not merged:
+        return []
+    pixels, total, saturated = {}, 0, 0.0
+    for info in merged.values():
+        for frame_id, share in info["from"].items():
+            label = format_seconds(info["shutters"][frame_id])
+            pixels[label] = pixels.get(label, 0.0) + share
+        total += 1
+        saturated += info["saturated_in_all"]
+    reference = format_seconds(next(iter(merged.values()))["reference_shutter"])
+    shares = ", ".join(f"{100 * share / total:.1f} % from {label}" for label, share in pixels.items())
+    lines = [f"{total} exposure bracket(s) merged into one frame each, scaled to {reference}: of their pixels "
+             f"{shares}; {100 * saturated / total:.2f} % saturated in every exposure (flagged)"]
+    return lines
+
+
+def frames_decoded(record):
+    """How many frame files a decode record decoded (or kept): those in ``linear/`` and the
+    exposures of brackets that were only merged."""
+    merged = record.get("merged") or {}
+    return len(record.get("frames") or {}) + sum(len(info.get("exposures") or {}) for info in merged.values())
 
 
 def recorded_kwargs(params):

@@ -6,6 +6,17 @@ the mean dark frame when it has one. A frame that cannot be decoded is recorded 
 ``failed`` (status 'partial') while the others are decoded; a rerun decodes only what is
 missing or stale. Raw files are only read.
 
+Exposure brackets (:mod:`pipeline.brackets`): each exposure has the ambient (else dark) frames
+shot at ITS shutter time subtracted (a lit exposure for which the session has references only
+at other shutter times is refused, named: a dark signal grows with the exposure), and the
+exposures of each group are merged into ``linear/<group>.exr`` (:mod:`pipeline.decode.merge`),
+recorded under ``merged`` ({group: exposures, shutters, reference shutter, share of pixels
+from each, measured ratios}). Lit exposures are decoded and merged in one worker task (only
+the merge is written); dark, ambient and outline exposures are decoded to ``linear/`` first
+(references are means of them), then merged. A group with an exposure missing, failed or
+without a reference of its shutter is not merged (``failed``). Merges are reused by the next
+run while what they read is unchanged, so a re-shot exposure re-merges its group only.
+
 Defaults: the unbiased ``mosaic`` path at full size (``binning=1``, bilinear demosaic, which is
 linear and unbiased away from sharp edges). ``binning=2`` interpolates nothing and is faster
 at half the resolution (a quarter of the output to write and hash).
@@ -23,21 +34,18 @@ import contextlib
 import os
 import shutil
 import time
-from pathlib import Path
-
-import numpy as np
 
 from .record import assumed
 from .frame import check_options, decode_frame, frame_size
+from .merge import decoded_inputs, lit_inputs, merge_task, unmergeable
 from .pool import prepare_pool, run_tasks, start_pool
+from .references import REFERENCE_KINDS, previous_references, references, shutter_label, write_reference
+from ..brackets import bracket_groups, frame_shutter, reference_shutter
 from ..errors import InputError, PsrigError, StageError
-from ..imageio import read_image, read_mask
 from ..paths import DECODE_SCRATCH
 
 __all__ = ["decode_frame", "decode_session", "REFERENCE_KINDS"]
 
-#: Kinds subtracted from lit frames, in order of preference.
-REFERENCE_KINDS = ("ambient", "dark")
 #: An interrupted run loses at most this many manifest saves' worth of decoding (see _Run).
 RECORD_SHARE = 20
 _LIT_KINDS = ("object", "sphere", "target")
@@ -76,18 +84,30 @@ def _sizes(session, frames, binning, failed):
     return sizes
 
 
-def _reusable(session, previous, params, inputs, frame, reference_ids):
+def _reusable(session, previous, params, inputs, frame, references):
     """True when the previous run's outputs of ``frame`` are still valid (a previous run that was
-    interrupted included: its record lists the frames it finished)."""
-    if not previous or previous.get("params") != params:
+    interrupted included: its record lists the frames it finished); ``references`` are the
+    frames subtracted from it now (lit frames)."""
+    if not previous or previous.get("params") != params or not _same_raw(previous, inputs, frame):
         return False
-    if previous.get("inputs", {}).get(frame["file"]) != inputs.get(frame["file"]):
-        return False
-    # decoded from this very file (not one another frame's ``file:`` now names)
-    if (previous.get("frames") or {}).get(frame["id"], {}).get("file") != frame["file"]:
-        return False
-    if frame["kind"] in _LIT_KINDS and _previous_references(previous, frame["kind"]) != reference_ids:
-        return False
+    if frame["kind"] in _LIT_KINDS:
+        if previous_references(previous, frame["kind"]) != [f["id"] for f in references]:
+            return False
+        # a re-shot dark or ambient frame changes what is subtracted: decode again
+        if not all(_same_raw(previous, inputs, f) for f in references):
+            return False
+    return _outputs_intact(session, previous, frame)
+
+
+def _same_raw(previous, inputs, frame):
+    """True when ``previous`` decoded ``frame`` from this very file (not one another frame's
+    ``file:`` now names) with this hash."""
+    return (previous.get("inputs", {}).get(frame["file"]) == inputs.get(frame["file"])
+            and (previous.get("frames") or {}).get(frame["id"], {}).get("file") == frame["file"])
+
+
+def _outputs_intact(session, previous, frame):
+    """True when the outputs of ``frame`` (dict or id) are on disk as ``previous`` recorded them."""
     recorded = previous.get("outputs", {})
     for path in (session.linear_path(frame), session.saturation_path(frame)):
         rel = session.rel(path)
@@ -96,28 +116,20 @@ def _reusable(session, previous, params, inputs, frame, reference_ids):
     return True
 
 
+def _merge_reusable(session, previous, params, group, digest):
+    """True when the previous run merged ``group`` from what ``digest`` (:mod:`.merge`) covers,
+    and its outputs are intact."""
+    if not previous or previous.get("params") != params:
+        return False
+    entry = (previous.get("merged") or {}).get(group.id) or {}
+    return entry.get("inputs_sha256") == digest and _outputs_intact(session, previous, group.id)
+
+
 def _task(session, frame, options, size, reference=None):
     return {"id": frame["id"], "source": str(session.path(frame["file"])),
             "linear": str(session.linear_path(frame)),
             "saturation": str(session.saturation_path(frame)),
             "options": options, "size": size, "reference": reference}
-
-
-def _write_reference(session, frames, kind, folder):
-    """Mean linear image and union saturation of reference frames, saved as .npy in ``folder``
-    (in the session's scratch, which the next writer sweeps if this run is killed)."""
-    total, saturated = None, None
-    for frame in frames:
-        linear = read_image(session.linear_path(frame))
-        flags = read_mask(session.saturation_path(frame))
-        total = linear.astype(np.float64) if total is None else total + linear
-        saturated = flags if saturated is None else saturated | flags
-    Path(folder).mkdir(parents=True, exist_ok=True)
-    paths = {"kind": kind, "mean": str(Path(folder) / "mean.npy"),
-             "saturated": str(Path(folder) / "saturated.npy")}
-    np.save(paths["mean"], (total / len(frames)).astype(np.float32))
-    np.save(paths["saturated"], saturated)
-    return paths
 
 
 class _Run:
@@ -135,8 +147,11 @@ class _Run:
         self.failed, self.previous, self.jobs, self.show = failed, previous, jobs, show
         self.frames = session.frames()
         self.files = {f["id"]: f["file"] for f in self.frames}
+        self.reference_shutter = reference_shutter(self.frames)  # what every merge is scaled to
         self.infos = {}
-        self.hashes = {}  # {output rel: sha256} of every output of a frame in infos
+        self.hashes = {}  # {output rel: sha256} of every output of a frame in infos (or merged)
+        self.merged = {}  # {bracket group: what its merge did (merge.merge_linear's info + inputs)}
+        self.merge_inputs = {}  # {bracket group: sha256 of what its queued merge reads}
         self.subtracted = {}
         self.tasks = []
         self.pool = None
@@ -144,22 +159,44 @@ class _Run:
         self.unrecorded = 0  # frames finished since the stage record was last saved
         self.saved_at, self.save_cost = 0.0, 0.0
 
-    def decode(self, frames, reference=None, reference_ids=None):
+    def decode(self, frames, reference=None, references=()):
         """Decode the frames whose outputs are not reusable; collect infos and failures."""
-        self.queue(frames, reference, reference_ids)
+        self.queue(frames, reference, references)
         self.decode_queued()
 
-    def queue(self, frames, reference=None, reference_ids=None):
-        """Plan the decoding of the frames whose outputs are not reusable (one pool for all)."""
+    def queue(self, frames, reference=None, references=()):
+        """Plan the decoding of the frames whose outputs are not reusable (one pool for all);
+        ``references`` are the frames whose mean (``reference``) is subtracted from them."""
         for frame in frames:
-            if _reusable(self.session, self.previous, self.params, self.inputs, frame, reference_ids):
+            if _reusable(self.session, self.previous, self.params, self.inputs, frame, references):
                 self.infos[frame["id"]] = self.previous.get("frames", {}).get(frame["id"], {})
-                for path in (self.session.linear_path(frame), self.session.saturation_path(frame)):
-                    rel = self.session.rel(path)
-                    self.hashes[rel] = self.previous["outputs"][rel]
+                self._keep_outputs(frame["id"])
             else:
                 self.tasks.append(_task(self.session, frame, dict(self.params),
                                         self.sizes[frame["id"]], reference))
+
+    def queue_merge(self, group, digest, members):
+        """Plan the merge of a bracket ``group`` unless the previous run's still holds
+        (``digest``: what it reads, :mod:`.merge`); ``members()`` gives its task's exposures."""
+        if _merge_reusable(self.session, self.previous, self.params, group, digest):
+            self.merged[group.id] = self.previous["merged"][group.id]
+            self._keep_outputs(group.id)
+            return
+        self.merge_inputs[group.id] = digest
+        self.tasks.append(merge_task(self.session, group, members(), self.reference_shutter,
+                                     dict(self.params), self.sizes[group.frames[0]["id"]]))
+
+    def fail_merge(self, group, problem):
+        """``group`` cannot be merged: say why, and remove an earlier run's merge of it (of
+        other exposures: it must not pass for this one's)."""
+        self.failed[group.id] = problem
+        for path in (self.session.linear_path(group.id), self.session.saturation_path(group.id)):
+            path.unlink(missing_ok=True)
+
+    def _keep_outputs(self, frame_id):
+        for path in (self.session.linear_path(frame_id), self.session.saturation_path(frame_id)):
+            rel = self.session.rel(path)
+            self.hashes[rel] = self.previous["outputs"][rel]
 
     def decode_queued(self):
         tasks, self.tasks = self.tasks, []
@@ -171,14 +208,18 @@ class _Run:
             self.close()  # a crashed worker breaks its pool: the next batch gets a new one
 
     def finished(self, frame_id, info, error, hashes):
-        """A frame's outputs are on disk (or it failed): keep it, and record it when due."""
+        """A frame's (or a bracket's merged) outputs are on disk, or it failed: keep it, and
+        record it when due."""
         if error:
             self.failed[frame_id] = error
         else:
             # hashes before infos: a Ctrl-C between the two must not leave a frame counted as
             # done without its hashes (the interrupt's own record lists the done frames' hashes)
             self.hashes.update({self.session.rel(path): digest for path, digest in hashes.items()})
-            self.infos[frame_id] = {**info, "file": self.files[frame_id]}
+            if frame_id in self.merge_inputs:
+                self.merged[frame_id] = {**info, "inputs_sha256": self.merge_inputs[frame_id]}
+            else:
+                self.infos[frame_id] = {**info, "file": self.files[frame_id]}
         self.unrecorded += 1
         if time.perf_counter() - self.saved_at >= RECORD_SHARE * self.save_cost:
             self.record_progress()
@@ -206,27 +247,9 @@ class _Run:
             self.pool.shutdown()
             self.pool = None
 
-    def needs_work(self, frames, reference_ids):
+    def needs_work(self, frames, references):
         return any(not _reusable(self.session, self.previous, self.params, self.inputs, f,
-                                 reference_ids) for f in frames)
-
-
-def _references(unlit, infos, lit_kind):
-    """(kind, [frames]) to subtract from lit frames of ``lit_kind``: the decoded ambient frames
-    shot for that kind (an ambient frame's ``applies_to``; every lit kind when it has none),
-    else the dark ones."""
-    for kind in REFERENCE_KINDS:
-        chosen = [f for f in unlit if f["kind"] == kind and f["id"] in infos
-                  and (kind != "ambient" or lit_kind in f.get("applies_to", _LIT_KINDS))]
-        if chosen:
-            return kind, chosen
-    return None, []
-
-
-def _previous_references(previous, lit_kind):
-    """Frame ids the previous run subtracted from ``lit_kind`` frames."""
-    subtracted = previous.get("subtracted", {})
-    return subtracted.get("by_kind", {}).get(lit_kind, subtracted).get("frames")
+                                 references) for f in frames)
 
 
 def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma="auto",
@@ -253,8 +276,9 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     -------
     dict
         The stage record: status 'ok', 'partial' (``failed`` = {frame id: reason}) or
-        'failed'; ``subtracted`` (kind and frame ids), ``frames_not_raw``, per-frame ``frames``
-        info, ``seconds``, and what was assumed: ``transfer`` ({transfer and why: frame ids} of
+        'failed'; ``subtracted`` (kind and frame ids; ``by_shutter`` for brackets),
+        ``frames_not_raw``, per-frame ``frames`` info, ``merged`` ({bracket group: info},
+        bracketed sessions only), ``seconds``, and what was assumed: ``transfer`` ({transfer and why: frame ids} of
         image files), ``postprocessed`` ({sensor: frame ids} of raw files the mosaic path
         cannot decode), ``linear_bytes`` and ``compression`` ({'zip' or 'none': count}).
     """
@@ -272,7 +296,9 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     inputs, failed = _verify(session, frames)
     # what decode reads from the manifest: which file each frame is, its kind (what is
     # subtracted from it) and an ambient frame's applies_to
-    inputs.update(session.manifest_input("decode", frames, ("id", "kind", "file", "applies_to")))
+    # (and each exposure's bracket, for bracketed sessions only: other records stay current)
+    keys = ("id", "kind", "file", "applies_to") + (("bracket",) if bracket_groups(frames) else ())
+    inputs.update(session.manifest_input("decode", frames, keys))
     if not force and not failed and session.stage_is_current("decode", params, inputs):
         return session.stage("decode")
     if pooled:
@@ -294,35 +320,115 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
 
 
 def _decode_all(session, frames, run, scratch):
-    """The unlit frames, then each lit kind minus its reference (mean ambient or dark frame)."""
+    """The unlit frames (every exposure of a bracket), then each lit kind minus its reference
+    (mean ambient or dark frame), and the merges of the brackets: in one batch."""
     unlit = [f for f in frames if f["kind"] not in _LIT_KINDS and f["id"] not in run.failed]
     lit = [f for f in frames if f["kind"] in _LIT_KINDS and f["id"] not in run.failed]
     run.decode(unlit)
+    groups = bracket_groups(frames)
+    for group in groups:
+        if group.kind not in _LIT_KINDS:
+            _queue_unlit_bracket(session, run, group)
     for lit_kind in sorted({f["kind"] for f in lit}):
-        group = [f for f in lit if f["kind"] == lit_kind]
-        kind, references = _references(unlit, run.infos, lit_kind)
-        reference_ids = [f["id"] for f in references]
-        reference = None
-        if references and run.needs_work(group, reference_ids):
-            reference = _write_reference(session, references, kind, scratch / lit_kind)
-        run.queue(group, reference, reference_ids)
-        run.subtracted[lit_kind] = {"kind": kind, "frames": reference_ids}
+        single = [f for f in lit if f["kind"] == lit_kind and f.get("bracket") is None]
+        if single:
+            _queue_lit(session, run, unlit, single, lit_kind, scratch / lit_kind / "single")
+        brackets = [g for g in groups if g.kind == lit_kind]
+        if brackets:
+            _queue_lit_brackets(session, run, unlit, brackets, lit_kind, scratch / lit_kind)
     run.decode_queued()
+
+
+def _queue_lit(session, run, unlit, frames, lit_kind, folder):
+    """Queue single-exposure lit ``frames`` of one kind with their reference, and note what
+    is subtracted from them."""
+    kind, chosen, problem = references(unlit, run.infos, lit_kind)
+    if problem:
+        for frame in frames:
+            run.failed[frame["id"]] = f"frame {frame['id']!r}: {problem}"
+        return
+    reference = None
+    if chosen and run.needs_work(frames, chosen):
+        reference = write_reference(session, chosen, kind, folder)
+    run.queue(frames, reference, chosen)
+    run.subtracted[lit_kind] = {"kind": kind, "frames": [f["id"] for f in chosen]}
+
+
+def _queue_unlit_bracket(session, run, group):
+    """Queue the merge of a dark, ambient or outline bracket from its decoded exposures."""
+    problem = unmergeable(group, run.failed)
+    digest = None if problem else decoded_inputs(session, group, run.hashes, run.reference_shutter)
+    if digest is None:
+        run.fail_merge(group, problem or f"frame {group.id!r}: not merged: an exposure was not decoded")
+        return
+    run.queue_merge(group, digest, lambda: [
+        {"id": f["id"], "shutter": shutter, "linear": str(session.linear_path(f)),
+         "saturation": str(session.saturation_path(f))} for f, shutter in zip(group.frames, group.shutters)])
+
+
+def _queue_lit_brackets(session, run, unlit, groups, lit_kind, folder):
+    """Queue the merges of lit brackets of one kind: each exposure decoded in the worker minus
+    the reference of its own shutter time (written once per shutter, when a merge needs it)."""
+    by_label, written = {}, {}
+    for group in groups:
+        for exposure in group.frames:
+            label = shutter_label(exposure)
+            if label not in by_label:
+                by_label[label] = references(unlit, run.infos, lit_kind, frame_shutter(exposure))
+    _note_subtracted(run, lit_kind, by_label)
+
+    def reference_of(label):
+        kind, chosen, _ = by_label[label]
+        if chosen and label not in written:
+            written[label] = write_reference(session, chosen, kind, folder / str(len(written)))
+        return written.get(label)
+
+    for group in groups:
+        problems = [f"frame {group.id!r} (exposure {f['id']!r}): {by_label[shutter_label(f)][2]}"
+                    for f in group.frames if by_label[shutter_label(f)][2]]
+        problem = unmergeable(group, run.failed) or "; ".join(problems)
+        if problem:
+            run.fail_merge(group, problem)
+            continue
+        chosen = {f["id"]: by_label[shutter_label(f)][1] for f in group.frames}
+        digest = lit_inputs(group, run.inputs, chosen, run.reference_shutter)
+        run.queue_merge(group, digest, lambda group=group: [
+            {"id": f["id"], "shutter": shutter, "file": f["file"], "source": str(session.path(f["file"])),
+             "reference": reference_of(shutter_label(f))} for f, shutter in zip(group.frames, group.shutters)])
+
+
+def _note_subtracted(run, lit_kind, by_label):
+    """The record's ``subtracted`` entry of a bracketed lit kind: each shutter's own, and all."""
+    entry = {"kind": None, "frames": [], "by_shutter": {}}
+    for label, (kind, chosen, _) in by_label.items():
+        ids = [f["id"] for f in chosen]
+        entry["by_shutter"][label] = {"kind": kind, "frames": ids}
+        entry["kind"] = entry["kind"] or kind
+        entry["frames"] += [i for i in ids if i not in entry["frames"]]
+    run.subtracted[lit_kind] = entry
 
 
 def _record(session, frames, run, seconds, status=None):
     done = [f for f in frames if f["id"] in run.infos]
+    merged = {group: run.merged[group] for group in sorted(run.merged)}
+    # what each frame decoded here was, whether kept in linear/ (infos) or only merged
+    decoded = {**{f["id"]: run.infos[f["id"]] for f in done},
+               **{i: e for info in merged.values() for i, e in (info.get("exposures") or {}).items()}}
     # Hashes come from the workers (computed on the bytes they wrote) or from the previous
     # record (checked by _reusable): no output is read back here.
-    outputs = {rel: run.hashes[rel] for f in done
-               for rel in (session.rel(session.linear_path(f)), session.rel(session.saturation_path(f)))}
+    outputs = {rel: run.hashes[rel] for frame in [f["id"] for f in done] + list(merged)
+               for rel in (session.rel(session.linear_path(frame)), session.rel(session.saturation_path(frame)))}
     subtracted = run.subtracted
     status = status or ("ok" if not run.failed else ("partial" if done else "failed"))
+    extra = {"merged": merged} if merged else {}
+    warnings = [w for info in merged.values() for w in info.get("warnings") or []]
+    if warnings:  # where psrig run and the report look for them
+        extra["warnings"] = warnings
     return session.record_stage(
         "decode", run.params, run.inputs, outputs, status=status, seconds=seconds,
         failed={k: run.failed[k] for k in sorted(run.failed)},
-        frames_not_raw=[f["id"] for f in done if not run.infos[f["id"]].get("raw", True)],
-        **assumed({f["id"]: run.infos[f["id"]] for f in done}),
+        frames_not_raw=[i for i, info in decoded.items() if not info.get("raw", True)],
+        **assumed({**decoded, **merged}),
         # top level: what the object frames got (earlier records' form); by_kind: every lit kind
         subtracted={**subtracted.get("object", {"kind": None, "frames": []}), "by_kind": subtracted},
-        frames={f["id"]: run.infos[f["id"]] for f in done})
+        frames={f["id"]: run.infos[f["id"]] for f in done}, **extra)

@@ -95,7 +95,7 @@ class NormalsRun:
 
 
 def _object_frames(session):
-    frames = sorted(session.frames("object"), key=lambda f: f["light"])
+    frames = sorted(session.stage_frames("object"), key=lambda f: f["light"])
     if not frames:
         raise StageError(f"{session.root}: normals: the session has no object frames")
     lights = [f["light"] for f in frames]

@@ -114,7 +114,7 @@ def lights_section(session, lights, scores):
     true_dirs = read_lights(truth).directions if truth is not None and truth.is_file() else None
     if lights_imported(session):
         true_dirs = None  # the same lights: nothing to draw apart
-    frames = {f["light"]: f["id"] for f in session.frames("object") if f.get("light") is not None}
+    frames = {f["light"]: f["id"] for f in session.stage_frames("object") if f.get("light") is not None}
     errors = (scores.get("lights") or {}).get("per_light_deg")
     header_, rows = light_rows(lights, frames, errors)
     return (f'<div class="charts">{hemisphere_svg(lights, true_dirs)}</div>'

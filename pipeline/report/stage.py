@@ -40,7 +40,7 @@ _MAPS = (NORMALS, NORMALS_MASK, ALBEDO, RESIDUAL, STATUS_MAP, OBSERVATIONS, DEPT
 
 def _sources(session):
     """Session-relative files the report reads (that exist), in a stable order."""
-    rels = [session.rel(session.linear_path(f)) for f in session.frames()
+    rels = [session.rel(session.linear_path(f)) for f in session.stage_frames()
             if session.linear_path(f).is_file()]
     rels += sorted(session.rel(p) for p in session.path("calibration").glob("*.png"))
     rels += [r for r in (LIGHTS,) + _MAPS if session.path(r).is_file()]
@@ -60,7 +60,7 @@ def _writer(session, written):
 def _thumbnails(session, write):
     """One thumbnail per decoded frame: [(kind, [Figure])], one white per frame kind."""
     groups = {}
-    for frame in session.frames():
+    for frame in session.stage_frames():  # an exposure bracket: its merged frame
         path = session.linear_path(frame)
         if path.is_file():
             groups.setdefault(frame["kind"], []).append((frame, shrink(read_image(path), THUMB_SIDE)))

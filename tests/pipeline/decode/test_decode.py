@@ -172,6 +172,20 @@ def test_dark_frame_is_subtracted_from_lit_frames(tmp_path):
                            atol=1e-4)
 
 
+def test_a_reshot_dark_frame_is_subtracted_anew(tmp_path):
+    """The dark frame shot again (a new raw file in the manifest): the lit frames it is
+    subtracted from are decoded again, not kept with the old one's subtracted."""
+    session = lit_session(tmp_path, dark=0.05)
+    decode_session(session, jobs=1, progress=False)
+    session.path("raw/dark_again.dng").write_bytes(flat_dng(0.07))
+    dark = session.frame("dark_000")
+    dark.update(file="raw/dark_again.dng",
+                sha256=hashlib.sha256(session.path("raw/dark_again.dng").read_bytes()).hexdigest())
+    session.save()
+    decode_session(session, jobs=1, progress=False)
+    assert np.allclose(read_image(session.linear_path("object_001")), 0.3 - 0.02, atol=1e-4)
+
+
 def test_ambient_is_preferred_to_dark(tmp_path):
     session = lit_session(tmp_path, dark=0.01, ambient=0.08)
     record = decode_session(session, jobs=1, progress=False)

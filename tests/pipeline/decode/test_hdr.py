@@ -58,3 +58,34 @@ def test_bad_input_is_refused(kwargs, message):
             "saturated": np.zeros((2, 4, 4), bool), **kwargs}
     with pytest.raises(InputError, match=message):
         merge_exposures(**args)
+
+
+def test_flags_per_pixel_take_all_of_a_pixels_channels_from_one_exposure():
+    rng = np.random.default_rng(1)
+    radiance = rng.uniform(0, 20, (30, 40, 3))
+    shutters = [1 / 60, 1 / 15]
+    images, per_value = bracket(radiance, shutters)
+    per_pixel = per_value.any(axis=3)   # as decode's masks: a pixel is saturated in any channel
+    result = merge_exposures(list(images), shutters, list(per_pixel))
+    assert result.saturated.shape == (30, 40) and result.source.shape == (30, 40)
+    expected_source = np.where(per_pixel[1], 0, 1)
+    np.testing.assert_array_equal(result.source, expected_source)
+    ok = ~result.saturated
+    np.testing.assert_allclose(result.image[ok], (radiance / 60)[ok], rtol=1e-5)
+    assert result.record["ratios"][0]["measured"] == pytest.approx(4.0, rel=1e-4)
+
+
+def test_exposures_that_do_not_scale_with_their_shutters_are_refused():
+    rng = np.random.default_rng(2)
+    radiance = rng.uniform(0, 20, (40, 40))
+    images, saturated = bracket(radiance, [1 / 30, 1 / 30])   # the camera kept one shutter time
+    with pytest.raises(InputError, match=r"1/15 s is 1.00 x the one at 1/60 s .* its shutter time says 4.00 x"):
+        merge_exposures(images, [1 / 60, 1 / 15], saturated, tolerance=0.2)
+    result = merge_exposures(images, [1 / 60, 1 / 15], saturated)   # no tolerance: measured, said
+    assert result.record["ratios"][0]["measured"] == pytest.approx(1.0, rel=1e-4)
+
+
+def test_a_dark_bracket_has_no_measured_ratio():
+    images = np.zeros((2, 20, 20), np.float32)
+    result = merge_exposures(images, [0.1, 0.4], np.zeros((2, 20, 20), bool), tolerance=0.2)
+    assert result.record["ratios"] == [{"shutters": [0.1, 0.4], "expected": 4.0, "measured": None, "pixels": 0}]

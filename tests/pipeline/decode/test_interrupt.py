@@ -6,6 +6,7 @@ be interrupted mid-decode on a loaded machine; waits are generous but bounded.
 """
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -16,6 +17,7 @@ import numpy as np
 import pytest
 
 from pipeline.dng import write_dng
+from pipeline.imageio import read_image
 from pipeline.session import Session
 
 REPO = Path(__file__).resolve().parents[3]
@@ -168,3 +170,63 @@ def test_sigkill_of_psrig_run_during_decode_leaves_no_process(tmp_path, kills, s
     out, err = again.communicate(timeout=600)
     assert again.returncode == 0, err
     assert all(Session.open(r).stage("decode")["status"] == "ok" for r in roots)
+
+
+# -- exposure brackets ------------------------------------------------------------------------
+
+SHUTTERS = ("1/60", "1/15")   # as a bracketed capture records them
+
+
+def bracketed_session(root, groups=12, shape=SHAPE, gain=4):
+    """A bracketed session: a dark frame and ``groups`` object frames, each shot at 1/60 and
+    1/15 s (the long exposure ``gain`` x the light, clipped at white: 4 as the shutter times
+    say)."""
+    rng = np.random.default_rng(8)
+    session = Session.create(root)
+    signal = rng.integers(80, 4500, size=shape).astype(np.int64)   # 1/15 s clips the top fifth
+
+    def add(kind, light, name, mosaic, n):
+        bracket = {"group": name, "index": n, "shutter": SHUTTERS[n], "of": len(SHUTTERS)}
+        session.add_frame(kind, write_dng(mosaic), light=light, frame_id=f"{name}_b{n}", save=False,
+                          bracket=bracket)
+
+    for n, _ in enumerate(SHUTTERS):
+        add("dark", None, "dark_000", np.full(shape, 512, np.uint16), n)
+    for light in range(groups):
+        for n, scale in enumerate((1, gain)):
+            add("object", light, f"object_{light:03d}",
+                np.minimum(512 + (signal + light) * scale, 16383).astype(np.uint16), n)
+    session.save()
+    return session.root
+
+
+@pytest.mark.slow
+def test_a_bracketed_decode_killed_mid_way_resumes_from_the_merges_done(tmp_path):
+    root = bracketed_session(tmp_path / "s")
+    pristine = shutil.copytree(root, tmp_path / "pristine")
+    proc = psrig("decode", root, "--jobs", "2")
+
+    def merges_recorded():   # the run saves its record every few frames: kill once one has it
+        merged = (Session.open(root).stage("decode") or {}).get("merged") or {}
+        return any(group.startswith("object") for group in merged)
+    wait_for(merges_recorded, proc, what="a merged bracket in the record")
+    proc.kill()
+    proc.wait(timeout=30)
+    record = Session.open(root).stage("decode")
+    assert record["status"] == "incomplete"
+    kept = list(record["frames"]) + list(record.get("merged") or {})
+    assert any(group.startswith("object") for group in kept), "the run recorded merges before the kill"
+    stamps = {f: (root / "linear" / f"{f}.exr").stat().st_mtime_ns for f in kept}
+    again = psrig("decode", root)
+    out, err = again.communicate(timeout=600)
+    assert again.returncode == 0, err
+    record = Session.open(root).stage("decode")
+    assert record["status"] == "ok" and len(record["merged"]) == 13 and list(record["frames"]) == [
+        "dark_000_b0", "dark_000_b1"]
+    assert {f: (root / "linear" / f"{f}.exr").stat().st_mtime_ns for f in kept} == stamps, \
+        "what was recorded before the kill was neither decoded nor merged again"
+    fresh = psrig("decode", pristine)
+    assert fresh.wait(timeout=600) == 0
+    for group in record["merged"]:
+        assert np.array_equal(read_image(root / "linear" / f"{group}.exr"),
+                              read_image(pristine / "linear" / f"{group}.exr")), group
