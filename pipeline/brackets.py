@@ -3,9 +3,9 @@
 A bracketed capture (a rig's ``exposure: {bracket: [1/60, 1/15]}``) shoots every frame once
 per shutter time: frames ``<group>_b<n>``, each with ``bracket: {group, index, shutter, of}``
 in the manifest (``shutter`` as the rig file wrote it, ``of`` the bracket's length). Decode
-decodes every exposure on its own into ``linear/<exposure id>.exr`` (its dark or ambient frame
-of the same shutter subtracted) and merges the exposures of a group into
-``linear/<group>.exr``; every later stage sees the group as ONE frame whose id is the group's
+merges the exposures of a group (each minus the dark or ambient frame of its own shutter) into
+``linear/<group>.exr`` (:mod:`pipeline.decode.merge`); every later stage sees the group as ONE
+frame whose id is the group's
 (:func:`stage_view`, :meth:`pipeline.session.Session.stage_frames`).
 
 The manifest is checked here (:func:`check_brackets`, called for every manifest read or
