@@ -176,6 +176,8 @@ class Session:
         try:
             self.manifest = read_manifest(self.root / MANIFEST)
             self.check_folders()
+            if writer != "capture":  # capture --resume adopts such files itself
+                self.check_unlisted_raw()
             if not lock.delegated and lock.users == 1:
                 self.swept = self._sweep()
         except BaseException:
@@ -218,6 +220,24 @@ class Session:
                                    "psrig writes only inside the session (make it a real folder)")
             if not resolved.is_dir():
                 raise SessionError(f"{folder}: not a folder")
+
+    def check_unlisted_raw(self):
+        """Refuse to write a session whose manifest, saved by a psrig before ``frame_count``,
+        may have lost frames: files in ``raw/`` that no frame names show it. (A manifest with
+        ``frame_count`` shows a cut itself; an unlisted file beside it is an interrupted capture's.)"""
+        raw = self.root / "raw"
+        if "frame_count" in self.manifest or not raw.is_dir() or raw.is_symlink():
+            return
+        named = {PurePosixPath(f["file"]).as_posix() for f in self.manifest["frames"]}
+        unlisted = sorted(p.name for p in raw.iterdir()
+                          if not p.name.startswith(".") and p.is_file() and f"raw/{p.name}" not in named)
+        if unlisted:
+            shown = ", ".join(unlisted[:3]) + (" ..." if len(unlisted) > 3 else "")
+            raise ManifestError(
+                f"{self.root / MANIFEST}: raw/ holds {len(unlisted)} file(s) no frame names ({shown}), and the "
+                "manifest (saved by an earlier psrig, without frame_count) cannot show whether it lost frames. "
+                f"A captured session: psrig capture {self.root} --resume --rig NAME adopts them; otherwise "
+                "restore session.yaml from your copies, or move files that are not the session's out of raw/")
 
     def _sweep(self):
         """Remove the temporaries and scratch folders interrupted writers left; {folder: (files,
@@ -589,11 +609,15 @@ def _check_complete(manifest, where):
         raise ManifestError(f"{where}: key 'frame_count' must be a number of frames, got {count!r}")
     if "saved" not in manifest:
         raise ManifestError(f"{where}: the manifest ends before its last key 'saved': the file was cut "
-                            "short; restore session.yaml from a backup")
+                            "short (psrig keeps no copy): restore session.yaml from your copies")
+    saved = manifest["saved"]
+    if not (isinstance(saved, _dt.date) or (isinstance(saved, str) and saved.strip())):
+        raise ManifestError(f"{where}: key 'saved' must be the time of the save (text), got {manifest['saved']!r}")
     listed = len(manifest["frames"])
     if listed != count:
-        cause = ("it lost frames (cut short?): restore session.yaml from a backup; or, "
-                 if listed < count else "")
+        cause = ("it lost frames (cut short?): restore session.yaml from your copies (psrig keeps none); "
+                 "a captured session can be completed after setting frame_count by psrig capture --resume, "
+                 "which adopts the frames left in raw/; or, " if listed < count else "")
         raise ManifestError(f"{where}: lists {listed} frames but was saved with {count} (frame_count): "
                             f"{cause}if the frames were changed by hand on purpose, set frame_count: {listed}")
 
@@ -614,7 +638,7 @@ def _validate_frame(frame, where, seen):
     light = frame.get("light")
     if frame["kind"] in LIT_KINDS:
         if isinstance(light, bool) or not isinstance(light, int) or light < 0:
-            raise ManifestError(f"{where}.light: a {frame['kind']} frame needs a light index >= 0, got {light!r}")
+            raise ManifestError(f"{where}.light: {frame['kind']} frames need a light index >= 0, got {light!r}")
     elif light is not None:
         raise ManifestError(f"{where}.light: a {frame['kind']} frame has no light, got {light!r}")
     check_relative(frame["file"], f"{where}.file")

@@ -41,6 +41,7 @@ from .merge import decoded_inputs, lit_inputs, merge_task, unmergeable
 from .pool import prepare_pool, run_tasks, start_pool
 from .references import REFERENCE_KINDS, previous_references, references, shutter_label, write_reference
 from ..brackets import bracket_groups, frame_shutter, reference_shutter
+from ..atomic import sweep_tree
 from ..errors import InputError, PsrigError, StageError
 from ..paths import DECODE_SCRATCH
 
@@ -313,6 +314,8 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
             _decode_all(session, frames, run, scratch)
     except BaseException:
         run.record_progress()  # interrupted: the next run starts from what is on disk
+        # the pool is shut down: the temporaries its workers were writing are nobody's now
+        sweep_tree(session.path("linear"), recursive=False)
         raise
     finally:
         shutil.rmtree(scratch, ignore_errors=True)

@@ -48,6 +48,8 @@ def refused(root, capsys, command="report", match=None):
     (("stages", "decode", "subtracted"), {"kind": 3}, "stages.decode.subtracted.kind"),
     (("stages", "decode", "frames", "object_000"), 7, "stages.decode.frames.object_000"),
     (("lights", "object_mask"), "../elsewhere.png", "lights.object_mask"),
+    (("saved",), None, "'saved'"),
+    (("saved",), 5, "'saved'"),
 ])
 def test_wrong_types_in_stored_fields_are_named(root, capsys, where, value, key):
     def change(data):
@@ -81,6 +83,16 @@ def test_older_manifests_without_a_count_still_open(root):
     session = Session.open(root, writer="run")
     session.save()
     assert Session.open(root).manifest["frame_count"] == len(session.frames())
+
+
+def test_an_older_manifest_that_lost_frames_is_not_written_over(root, capsys):
+    """Without frame_count a cut cannot show in the manifest; raw files no frame names do."""
+    edit(root, lambda data: [data.pop("frame_count"), data.pop("saved"), data.update(frames=data["frames"][:5])])
+    before = (root / "session.yaml").read_text()
+    err = refused(root, capsys, command="run", match="raw/ holds 3 file(s) no frame names")
+    assert "--resume" in err
+    assert (root / "session.yaml").read_text() == before, "nothing written"
+    Session.open(root, writer="capture").release()   # capture --resume may open it to adopt them
 
 
 def test_duplicate_file_entries_are_refused_when_read(root, capsys):

@@ -66,6 +66,8 @@ def test_ctrl_c_during_the_first_decode_is_resumed(tmp_path):
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err, err
     done = decoded(root)
+    assert not [p.name for p in (root / "linear").iterdir() if p.name.startswith(".")], \
+        "Ctrl-C leaves no temporaries behind"
     record = Session.open(root).stage("decode")
     assert record["status"] == "incomplete"
     assert set(record["frames"]) == done, "every frame on disk is recorded"
