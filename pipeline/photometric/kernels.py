@@ -337,13 +337,16 @@ def _step_system(o, w, lt, ht, yp, xs, cs, m, c, t1, t2, pen, a, e):
         e[2 + r] -= penalty_c
 
 
+def _rho(c, x, y1, y2):
+    """The biquadratic reflectance at x = n.h, y = l.h (y1 = y, y2 = y^2) for coefficients c (9,)."""
+    return (c[0] + c[1] * y1 + c[2] * y2) + x * ((c[3] + c[4] * y1 + c[5] * y2) + x * (c[6] + c[7] * y1 + c[8] * y2))
+
+
 def _cost(o, w, yp, xs, cs, m, c, pen):
     """sum_k w (obs - R s)^2 + c' pen c."""
     total = 0.0
     for j in range(m):
-        x = xs[j]
-        y1, y2 = yp[j, 1], yp[j, 2]
-        rho = (c[0] + c[1] * y1 + c[2] * y2) + x * ((c[3] + c[4] * y1 + c[5] * y2) + x * (c[6] + c[7] * y1 + c[8] * y2))
+        rho = _rho(c, xs[j], yp[j, 1], yp[j, 2])
         r = o[j] - rho * cs[j]
         total += w[j] * r * r
     for i in range(9):
@@ -358,9 +361,7 @@ def _rss_albedo(o, w, yp, xs, cs, m, c):
     level = 0.0
     count = 0.0
     for j in range(m):
-        x = xs[j]
-        y1, y2 = yp[j, 1], yp[j, 2]
-        rho = (c[0] + c[1] * y1 + c[2] * y2) + x * ((c[3] + c[4] * y1 + c[5] * y2) + x * (c[6] + c[7] * y1 + c[8] * y2))
+        rho = _rho(c, xs[j], yp[j, 1], yp[j, 2])
         r = o[j] - rho * cs[j]
         rss += w[j] * r * r
         level += w[j] * rho
@@ -580,7 +581,7 @@ def _kth_smallest(a, n, kth):
 
 
 _PY = {name: globals()[name] for name in ("_fit_shared", "_fit_per_pixel", "_compact", "_fit_one", "_iterate", "_geometry",
-                                         "_tangents", "_coefficient_system", "_step_system", "_cost", "_rss_albedo",
+                                         "_tangents", "_coefficient_system", "_step_system", "_rho", "_cost", "_rss_albedo",
                                          "_hat_trace", "_cholesky_solve", "_select_shared", "_select_per_pixel",
                                          "_select_one", "_consensus", "_lambert", "_solve3", "_kth_smallest")}
 #: The compiled kernels, built on first use (:func:`kernels`)
