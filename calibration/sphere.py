@@ -373,7 +373,10 @@ def _combine(parts, circles, K):
         reasons = [f[k] for f in sphere_flags]
         flags[int(k)] = reasons[0] if len(parts) == 1 else "; ".join(
             f"sphere {s}: {why}" for s, why in enumerate(reasons))
-    unc = np.nanmax(np.stack([p[3] for p in parts]), axis=0)
+    stacked = np.stack([p[3] for p in parts])
+    # a light no sphere saw has no uncertainty (NaN, and it is flagged), not a warning
+    unc = np.where(np.isnan(stacked), -np.inf, stacked).max(axis=0)
+    unc[np.isinf(unc)] = np.nan
     method = (("perspective" if K is not None else "orthographic")
               + f" chrome sphere x{len(circles)}, direction-weighted highlight")
     return SphereCalibration(directions, circles, np.stack([p[1] for p in parts]), per, flags,
