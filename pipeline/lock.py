@@ -24,6 +24,8 @@ holds it.
 
 import contextlib
 import datetime as _dt
+import multiprocessing
+import multiprocessing.forkserver
 import errno
 import fcntl
 import json
@@ -40,7 +42,7 @@ from pathlib import Path
 from .errors import SessionError
 
 __all__ = ["SessionLock", "SessionLocked", "Holder", "LOCK_FILE", "acquire", "holder", "act_under",
-           "authorize", "lifeline", "watch_lifeline"]
+           "authorize", "lifeline", "watch_lifeline", "worker_context"]
 
 #: The lock file in every session folder (never removed: removing a lock file races its users).
 LOCK_FILE = ".psrig.lock"
@@ -290,7 +292,39 @@ def authorize(root):
         os.close(fd)
 
 
-# -- workers die with their parent ------------------------------------------------------------
+# -- worker processes: this psrig, and dying with their parent ------------------------------
+
+def worker_context(preload=()):
+    """The ``forkserver`` multiprocessing context psrig's process pools use, its server started.
+
+    The server starts as ``python -c ...``, which puts the working directory first on
+    ``sys.path`` (and Python 3.11 ignores the ``sys.path`` it is handed): run from a folder
+    holding a ``pipeline`` of its own (an older checkout, a lab's own scripts), every worker
+    would import that one and die. So the server starts with ``PYTHONSAFEPATH`` (no working
+    directory) and the folder of the psrig this process runs first on ``PYTHONPATH``.
+    """
+    context = multiprocessing.get_context("forkserver")
+    if preload:
+        context.set_forkserver_preload(list(preload))
+    home = str(Path(__file__).resolve().parents[1])
+    shadow = Path.cwd() / "pipeline"
+    if sys.version_info < (3, 11) and shadow.exists() and shadow.resolve() != Path(home, "pipeline"):
+        raise SessionError(f"{Path.cwd()} holds a folder 'pipeline' that psrig's worker processes would import "
+                           "instead of psrig on this Python (before 3.11); run psrig from another folder")
+    with _GUARD:
+        saved = {key: os.environ.get(key) for key in ("PYTHONSAFEPATH", "PYTHONPATH")}
+        os.environ["PYTHONSAFEPATH"] = "1"
+        os.environ["PYTHONPATH"] = os.pathsep.join([home] + ([saved["PYTHONPATH"]] if saved["PYTHONPATH"] else []))
+        try:
+            multiprocessing.forkserver.ensure_running()
+        finally:
+            for key, value in saved.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
+    return context
+
 
 _LIFELINE = None
 

@@ -12,7 +12,6 @@ tests may replace with stubs.
 """
 
 import concurrent.futures
-import multiprocessing
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import PsrigError, SessionError, StageError
-from .lock import act_under, lifeline, watch_lifeline
+from .lock import act_under, lifeline, watch_lifeline, worker_context
 from .paths import LIGHTS
 from .session import STAGES, Session
 
@@ -311,7 +310,7 @@ def run_sessions(roots, *, options=None, force=False, start=None, stop=None, job
             outcomes.append(outcome)
         return outcomes
     sessions, outcomes = lock_sessions(roots, "run", wait=wait, echo=echo), {}
-    context = multiprocessing.get_context("forkserver")
+    context = worker_context()
     with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=watch_lifeline,
                                                 initargs=(lifeline(context),)) as pool:
         # one decode worker per session: the sessions already share the cores

@@ -47,8 +47,9 @@ def format_summary(result):
         lines.append(_lights_line(result["lights"]))
     if "depth" in result:
         d = result["depth"]
+        article = "an" if d["fit"] == "offset" else "a"
         lines.append(f"depth: mean abs {d['mean_abs']:.3f}, median abs {d['median_abs']:.3f} "
-                     f"(after a {d['fit']} fit)")
+                     f"(after {article} {d['fit']} fit)")
     return "\n".join(lines)
 
 

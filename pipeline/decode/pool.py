@@ -18,8 +18,6 @@ every commit before it returns, so nothing is recorded before it is on disk.
 import concurrent.futures as futures
 import contextlib
 import hashlib
-import multiprocessing
-import multiprocessing.forkserver
 import os
 
 import cv2
@@ -33,7 +31,7 @@ from .merge import merge_linear
 from .raw import decode_raw
 from ..errors import ImageFileError, PsrigError
 from ..imageio import read_image, read_mask
-from ..lock import lifeline, watch_lifeline
+from ..lock import lifeline, watch_lifeline, worker_context
 from ..progress import progress
 
 __all__ = ["run_tasks", "decode_task", "write_saturation", "encode_saturation", "start_pool",
@@ -259,11 +257,9 @@ def decode_task(task, *, commit=True):
 
 
 def _context():
-    context = multiprocessing.get_context("forkserver")
     # Workers start from a clean single-threaded server (no inherited OpenImageIO/OpenEXR
     # threads) that has already imported the decoder.
-    context.set_forkserver_preload(["pipeline.decode.pool"])
-    return context
+    return worker_context(preload=["pipeline.decode.pool"])
 
 
 def prepare_pool():
@@ -272,7 +268,6 @@ def prepare_pool():
     the workers of :func:`start_pool` then fork from it at once. It serves this process until
     it exits, as it would after the first pool anyway."""
     _context()
-    multiprocessing.forkserver.ensure_running()
 
 
 def start_pool(jobs):

@@ -161,3 +161,23 @@ def test_read_only_commands_need_no_lock(tmp_path, capsys, holder_procs):
     holder_procs.append(proc)
     assert main(["rigs"]) == 0
     assert "sim" in capsys.readouterr().out
+
+
+def test_workers_import_this_psrig_whatever_the_working_folder(tmp_path):
+    """Run from a folder holding a ``pipeline`` of its own (here an older checkout's flat
+    layout), every decode worker imported that one and died: 'decoder crashed' for each frame
+    and the workers' tracebacks on the terminal."""
+    root = make_session(tmp_path).root
+    checkout = tmp_path / "old-checkout"
+    (checkout / "pipeline").mkdir(parents=True)
+    (checkout / "pipeline" / "__init__.py").write_text("")
+    (checkout / "pipeline" / "decode.py").write_text("raise ImportError('the other pipeline')\n")
+    # a script, as the installed `psrig` is: its own folder leads sys.path, not the working one
+    script = tmp_path / "bin" / "psrig_main.py"
+    script.parent.mkdir()
+    script.write_text("import sys\nfrom pipeline.cli import main\nif __name__ == '__main__':\n    sys.exit(main())\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
+    done = subprocess.run([sys.executable, str(script), "decode", str(root), "--jobs", "2", "--force"],
+                          cwd=checkout, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr
