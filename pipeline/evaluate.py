@@ -244,6 +244,7 @@ def _eval_lights(session):
         result["flagged"] = sorted(int(k) for k in estimated.flags)
     if estimated.intensities.shape == truth.intensities.shape and np.ptp(truth.intensities) > 0:
         result["intensities"] = intensity_errors(estimated.intensities[kept], truth.intensities[kept])
+        result["intensities"]["worst_light"] = int(np.flatnonzero(kept)[result["intensities"]["worst_light"]])
     if estimated.positions is not None and truth.positions is not None:
         result["positions"] = position_errors(estimated.positions[kept], truth.positions[kept])
     return result

@@ -60,6 +60,9 @@ def _lights_line(lights):
         return f"lights: not evaluated, every light flagged ({len(lights.get('flagged', []))})"
     line = (f"lights: mean {lights['mean_deg']:.3f} deg, median {lights['median_deg']:.3f} deg, "
             f"max {lights['max_deg']:.3f} deg (light {lights['worst_light']})")
+    if "intensities" in lights:
+        i = lights["intensities"]
+        line += f"; intensities mean {i['mean_pct']:.2f} %, max {i['max_pct']:.2f} % (light {i['worst_light']})"
     if lights.get("flagged"):
         line += f"; {len(lights['flagged'])} flagged light(s) left out"
     return line
