@@ -58,19 +58,37 @@ def _settings(params):
     return "<br>".join(rows) or "defaults"
 
 
+#: per stage, the record entries that say what the stage decided (its rule, its checks'
+#: verdicts), shown beside its settings; every entry is in the stage records below
+OUTCOMES = {
+    "decode": ("compression", "subtracted.kind"),
+    "calibrate": ("light_model", "flagged"),
+    "normals": ("selection", "shared_shape_check", "specular_anchor", "lights_left_out"),
+    "integrate": ("mesh.unit", "mesh.faces_left_out_at_jumps"),
+}
+
+
+def _outcomes(name, record):
+    wanted = OUTCOMES.get(name, ())
+    rows = [f"<code>{escape(k)} = {escape(format_value(v) if v not in ({}, []) else 'none')}</code>"
+            for k, v in flatten(record) if any(k == w or k.startswith(w + ".") for w in wanted)]
+    return "<br>".join(rows)
+
+
 def stages_table(session):
     rows = []
     for name in STAGES:
         record = session.stage(name)
         if record is None:
-            rows.append([name, "not run", "", "", "", ""])
+            # the report's own record is written after this page
+            rows.append([name, "this page" if name == "report" else "not run", "", "", "", "", ""])
             continue
         seconds = record.get("seconds")
         warned = len(record.get("warnings") or [])
         rows.append([name, escape(str(record.get("status", "ok"))), "" if seconds is None else f"{seconds:.2f} s",
                      escape(str(record.get("finished", ""))), _settings(record.get("params")),
-                     f'<span class="flag">{warned}</span>' if warned else "0"])
-    return table(["stage", "status", "time", "finished", "settings", "warnings"], rows)
+                     _outcomes(name, record), f'<span class="flag">{warned}</span>' if warned else "0"])
+    return table(["stage", "status", "time", "finished", "settings", "outcome", "warnings"], rows)
 
 
 def _value(v, key=""):

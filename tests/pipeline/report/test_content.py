@@ -71,6 +71,9 @@ def test_every_stage_warning_and_record_key_is_shown(processed):
     for key in ("selection.rule", "selection.reject_k", "specular_anchor.mismatch_deg"):
         assert f"<code>{key}</code>" in text
     assert "1.25" in text and "robust" in text
+    # the stages table gives the rule and the verdicts beside the settings, not only the method
+    stages = text.split("<h2>Stages</h2>")[1].split("<h2>")[0]
+    assert "<code>selection.rule = robust</code>" in stages and "<code>specular_anchor.anchor = on</code>" in stages
 
 
 def test_header_names_the_lights_in_use_not_the_manifest_source(processed):
