@@ -15,7 +15,7 @@ def register(subparsers):
         "preview", help="one frame per light: histogram, clipping, suggested shutter, focus",
         description="Shoot one frame per chosen light on a rig (default: its brightest light) and "
                     "print the histogram summary, the clipped share per colour channel, a shutter "
-                    "putting the 99.9th percentile at 80 %% of white, and a focus measure; a PNG "
+                    "putting the 99.9th percentile at 80 % of white, and a focus measure; a PNG "
                     "of each frame is written to --out.")
     parser.add_argument("--rig", required=True, metavar="NAME", help="rig of the rig file (e.g. sim)")
     parser.add_argument("--config", metavar="FILE", help="rig file to read instead of rigs.yaml")
