@@ -31,6 +31,7 @@ import fcntl
 import json
 import os
 import signal
+import site
 import socket
 import sys
 import threading
@@ -311,10 +312,14 @@ def worker_context(preload=()):
     if sys.version_info < (3, 11) and shadow.exists() and shadow.resolve() != Path(home, "pipeline"):
         raise SessionError(f"{Path.cwd()} holds a folder 'pipeline' that psrig's worker processes would import "
                            "instead of psrig on this Python (before 3.11); run psrig from another folder")
+    # an installed psrig is found without help; a source checkout needs its folder on the path
+    # (but a site-packages folder there would come before the standard library)
+    installed = home in {str(Path(p).resolve()) for p in site.getsitepackages() + [site.getusersitepackages()]}
     with _GUARD:
         saved = {key: os.environ.get(key) for key in ("PYTHONSAFEPATH", "PYTHONPATH")}
         os.environ["PYTHONSAFEPATH"] = "1"
-        os.environ["PYTHONPATH"] = os.pathsep.join([home] + ([saved["PYTHONPATH"]] if saved["PYTHONPATH"] else []))
+        if not installed:
+            os.environ["PYTHONPATH"] = os.pathsep.join([home] + ([saved["PYTHONPATH"]] if saved["PYTHONPATH"] else []))
         try:
             multiprocessing.forkserver.ensure_running()
         finally:
