@@ -25,7 +25,7 @@ The methods and the measurements behind the defaults: docs/photometric-stereo.md
 from . import biquadratic  # noqa: F401  (registers the default method)
 from .biquadratic import Biquadratic, biquadratic_method
 from .estimate import PhotometricResult, SolvePlan, check_lights, estimate_normals, plan_solve
-from .methods import METHODS, STATUS, STATUS_NAMES, get_method, register_model_methods
+from .methods import METHODS, STATUS, STATUS_NAMES, get_method, register_model_methods, share_text
 from .near_lights import PointLights, observations_at
 from .selection import light_spread_deg, resolve_selection
 from .stage import normals_session, normals_summary, normals_warnings
@@ -33,7 +33,7 @@ from .tiles import SCRATCH, WHOLE_IMAGE, TilePlan, assemble_normals, plan_normal
 
 register_model_methods()
 
-__all__ = ["estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_lights", "METHODS",
+__all__ = ["share_text", "estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_lights", "METHODS",
            "get_method", "STATUS", "STATUS_NAMES", "Biquadratic", "biquadratic_method", "PointLights",
            "observations_at", "light_spread_deg", "resolve_selection", "normals_session", "normals_summary",
            "normals_warnings", "TilePlan",

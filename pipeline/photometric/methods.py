@@ -24,7 +24,7 @@ from .selection import select_observations
 
 __all__ = ["METHODS", "get_method", "STATUS", "STATUS_NAMES", "STATUS_PALETTE", "MIN_OBS", "ILL_CONDITIONED",
            "base_status", "ill_conditioned", "facing_away", "no_normal", "shading",
-           "lambert_method", "lambert_low_method", "ModelAlternation", "register_model_methods"]
+           "lambert_method", "lambert_low_method", "ModelAlternation", "register_model_methods", "share_text"]
 
 STATUS = {"background": 0, "ok": 1, "shadowed": 2, "too_few": 3, "not_converged": 4, "lambert_fallback": 5,
           "shared_shape": 6, "ill_posed": 7}
@@ -46,6 +46,14 @@ METHODS = Registry("photometric stereo method")
 def get_method(name):
     """The method called ``name``; the error lists every method (:data:`METHODS`)."""
     return METHODS[name]
+
+
+def share_text(count, total):
+    """A share of pixels as a person reads it: '0.0%' only when there are none ('<0.1%' for a
+    few), so a status that is present never reads as absent."""
+    if count and count / max(total, 1) < 0.0005:
+        return "<0.1%"
+    return f"{count / max(total, 1):.1%}"
 
 
 def base_status(weights, base, lights=None):

@@ -22,7 +22,7 @@ from ..paths import LIGHTS, OBSERVATIONS
 from ..progress import progress as progress_bar
 from ..yamlio import plain
 from .estimate import estimate_normals
-from .methods import STATUS, STATUS_NAMES, STATUS_PALETTE
+from .methods import STATUS, STATUS_NAMES, STATUS_PALETTE, share_text
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
 
@@ -292,7 +292,7 @@ def normals_warnings(counts, lights, options):
 def normals_summary(record):
     """One line of a normals record: pixels, the status shares, the light correction."""
     pixels = max(record.get("pixels") or 0, 1)
-    shares = ", ".join(f"{name} {count / pixels:.1%}" for name, count in (record.get("status_counts") or {}).items()
+    shares = ", ".join(f"{name} {share_text(count, pixels)}" for name, count in (record.get("status_counts") or {}).items()
                        if count)
     anchor = record.get("specular_anchor") or {}
     cone = f"; lights' cone scaled by {anchor['cone_scale']:.3f} (specular anchor)" \

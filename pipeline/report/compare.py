@@ -15,6 +15,7 @@ from ..atomic import atomic_write_text
 from ..errors import InputError
 from ..evaluate import ERROR_TOP_DEG, evaluate_session
 from ..imageio import write_image
+from ..photometric import share_text
 from ..session import now_iso
 from . import html, sections
 from .charts import error_by_observations, error_histogram
@@ -57,7 +58,7 @@ def _summary_table(sessions, labels, scores):
                                for k, v in flatten(normals.get("params") or {})) or "not run"
         counts = normals.get("status_counts") or {}
         total = sum(counts.values()) or 1
-        shares = "<br>".join(f"{html.escape(k)} {v / total:.1%}" for k, v in counts.items() if v)
+        shares = "<br>".join(f"{html.escape(k)} {html.escape(share_text(v, total))}" for k, v in counts.items() if v)
         n = score.get("normals") or {}
         error = (f"mean {n['mean_deg']:.2f}, median {n['median_deg']:.2f}, p90 {n['p90_deg']:.2f} deg"
                  if n else "no ground truth")

@@ -11,6 +11,7 @@ scale is the 1st .. 99th percentile of the heights, over all the sessions compar
 integration's unit. Albedo is a tone-mapped picture (no false colour), white stated.
 """
 
+import html
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,6 +19,7 @@ import numpy as np
 from ..evaluate import ERROR_TOP_DEG, normal_errors
 from ..imageio import read_image, read_image_native, read_mask
 from ..paths import ALBEDO, DEPTH, NORMALS, NORMALS_MASK, OBSERVATIONS, RESIDUAL, SHADED, STATUS_MAP
+from ..photometric import share_text
 from .images import Scale, colour_bar, colour_map, normals_rgb, robust_max, status_legend, status_rgb, tone_map
 
 __all__ = ["SessionMaps", "Figure", "read_maps", "choose_scales", "map_figures", "bar_figures", "RESIDUAL_TOP"]
@@ -138,8 +140,10 @@ def map_figures(maps, scales, folder, write, names=None, colours=None):
                               scale, key="error"))
     if maps.status is not None and names is not None:
         rows = status_legend(maps.status, names, colours)
+        total = sum(row[3] for row in rows)
         legend = "".join(f'<span class="swatch" style="background: rgb{rgb}"></span>{name} '
-                         f"{share:.1%} <small>({pixels} px)</small><br>" for _, name, rgb, pixels, share in rows)
+                         f"{html.escape(share_text(pixels, total))} <small>({pixels} px)</small><br>"
+                         for _, name, rgb, pixels, _ in rows)
         figures.append(Figure(write(f"{folder}/status.png", status_rgb(maps.status, colours)),
                               "status of each pixel's fit", legend=legend, key="status"))
     if maps.albedo is not None:

@@ -11,3 +11,10 @@ def test_summary_line_has_shares_and_the_lights_left_out():
     assert "too_few" not in line
     assert line.endswith("lights left out (flagged in calibration/lights.yaml): 4, 7")
     assert "left out" not in normals_summary({**record, "lights_left_out": []})
+
+
+def test_a_status_that_is_present_never_reads_as_absent():
+    # 26 of 94365 pixels read "not_converged 0.0%" beside the px count that said otherwise
+    line = normals_summary({"pixels": 94365, "status_counts": {"ok": 94289, "not_converged": 26,
+                                                               "lambert_fallback": 50}})
+    assert "not_converged <0.1%" in line and "lambert_fallback 0.1%" in line
