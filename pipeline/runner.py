@@ -197,7 +197,8 @@ def run_stage(session, name, options, force, jobs):
     seconds = time.perf_counter() - start
     record = session.stage(name)
     if record is not None and record.get("status", "ok") != "ok":
-        failed = "; ".join(f"{k}: {v}" for k, v in (record.get("failed") or {}).items())
+        from .decode import describe_failures   # only decode fails frame by frame
+        failed = "; ".join(describe_failures(record.get("failed")))
         raise StageError(f"stage {name}: {session.root}: status {record['status']}"
                          + (f" ({failed})" if failed else ""))
     ran = record is not None and record is not before

@@ -53,7 +53,7 @@ def _gamma(text):
 
 def run(args):
     """Handler: decode, print a summary, exit 1 when a frame failed."""
-    from ..decode import decode_session, describe_record, frames_decoded
+    from ..decode import decode_session, describe_failures, describe_record, frames_decoded
 
     session = open_session(args.session, args)
     before = session.stage("decode")
@@ -72,6 +72,6 @@ def run(args):
         print(f"decode: {line}")
     for warning in record.get("warnings") or []:
         print(f"decode: warning: {warning}")
-    for frame_id, reason in record.get("failed", {}).items():
-        print(f"psrig decode: error: {reason}", file=sys.stderr)
+    for line in describe_failures(record.get("failed")):
+        print(f"psrig decode: error: {line}", file=sys.stderr)
     return 0 if record["status"] == "ok" else 1

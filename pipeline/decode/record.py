@@ -10,7 +10,7 @@ from ..brackets import format_seconds
 from ..gamma import NAMES
 from .transfer import describe_transfer
 
-__all__ = ["assumed", "describe", "describe_merged", "frames_decoded", "recorded_kwargs"]
+__all__ = ["assumed", "describe", "describe_merged", "describe_failures", "frames_decoded", "recorded_kwargs"]
 
 
 def assumed(infos):
@@ -110,3 +110,20 @@ def recorded_kwargs(params):
     if kwargs.get("gamma") not in NAMES and kwargs.get("gamma") is not None:
         kwargs["gamma"] = float(kwargs["gamma"])
     return kwargs
+
+
+def describe_failures(failed, named=3):
+    """One line per distinct reason of a record's ``failed`` {frame id: reason}, naming its
+    frames (the first ``named``, then a count): a crashed pool fails every frame alike, and
+    66 identical lines hide what happened."""
+    frames_by_reason = {}
+    for frame_id, reason in (failed or {}).items():
+        frames_by_reason.setdefault(reason, []).append(frame_id)
+    lines = []
+    for reason, ids in frames_by_reason.items():
+        if len(ids) == 1 and ids[0] in reason:
+            lines.append(reason)
+            continue
+        more = f" and {len(ids) - named} more" if len(ids) > named else ""
+        lines.append(f"{', '.join(ids[:named])}{more}: {reason}")
+    return lines
