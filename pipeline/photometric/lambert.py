@@ -2,7 +2,11 @@
 
 import numpy as np
 
-__all__ = ["lambert_weighted", "outer_table", "solve3"]
+__all__ = ["lambert_weighted", "outer_table", "solve3", "ill_conditioned", "facing_away", "ILL_CONDITIONED"]
+
+#: the weakest direction of a pixel's selected lights, relative to the strongest (eigenvalues of
+#: sum_k w l l^T), below which its normal is not determined (:func:`ill_conditioned`)
+ILL_CONDITIONED = 1e-3
 
 
 def outer_table(vectors):
@@ -56,3 +60,18 @@ def solve3(a, rhs):
     det = a00 * cof[:, 0] + a01 * cof[:, 3] + a02 * cof[:, 6]
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.einsum("nij,nj->ni", cof.reshape(-1, 3, 3), rhs) / det[:, None]
+
+
+def ill_conditioned(weights, lights, ratio=ILL_CONDITIONED):
+    """Pixels (N,) bool whose weighted lights span three dimensions too weakly: the smallest
+    eigenvalue of sum_k w l l^T under ``ratio`` x the largest (noise amplified over 30x)."""
+    normal = np.einsum("nk,ki,kj->nij", weights, lights, lights) if lights.ndim == 2 else \
+        np.einsum("nk,nki,nkj->nij", weights, lights, lights)
+    eig = np.linalg.eigvalsh(normal)
+    return eig[:, 0] < ratio * np.maximum(eig[:, 2], 1e-300)
+
+
+def facing_away(b):
+    """Pixels (N,) bool whose b (N, 3) does not face the camera (n_z <= 0, or not finite): an
+    orthographic camera cannot see such a surface, so no observation supports it."""
+    return ~(np.isfinite(b).all(axis=1) & (b[:, 2] > 0))

@@ -19,7 +19,7 @@ import numpy as np
 from ..registry import Registry
 from ..reflectance import MODELS, Geometry, get_model
 from .model import unit
-from .lambert import lambert_weighted
+from .lambert import ILL_CONDITIONED, facing_away, ill_conditioned, lambert_weighted
 from .selection import select_observations
 
 __all__ = ["METHODS", "get_method", "STATUS", "STATUS_NAMES", "STATUS_PALETTE", "MIN_OBS", "ILL_CONDITIONED",
@@ -35,9 +35,6 @@ STATUS_PALETTE = {"background": (0, 0, 0), "ok": (60, 170, 60), "shadowed": (40,
                   "too_few": (200, 160, 0), "not_converged": (220, 40, 40), "lambert_fallback": (150, 80, 200),
                   "shared_shape": (0, 160, 170), "ill_posed": (240, 120, 0)}
 MIN_OBS = 3
-#: the weakest direction of a pixel's selected lights, relative to the strongest (eigenvalues of
-#: sum_k w l l^T), below which its normal is not determined (:func:`ill_conditioned`)
-ILL_CONDITIONED = 1e-3
 
 #: Photometric-stereo methods by name (``psrig normals --method NAME``)
 METHODS = Registry("photometric stereo method")
@@ -69,21 +66,6 @@ def base_status(weights, base, lights=None):
     status[used < MIN_OBS] = STATUS["too_few"]
     status[base.sum(axis=1) == 0] = STATUS["shadowed"]
     return status, used
-
-
-def ill_conditioned(weights, lights, ratio=ILL_CONDITIONED):
-    """Pixels (N,) bool whose weighted lights span three dimensions too weakly: the smallest
-    eigenvalue of sum_k w l l^T under ``ratio`` x the largest (noise amplified over 30x)."""
-    normal = np.einsum("nk,ki,kj->nij", weights, lights, lights) if lights.ndim == 2 else \
-        np.einsum("nk,nki,nkj->nij", weights, lights, lights)
-    eig = np.linalg.eigvalsh(normal)
-    return eig[:, 0] < ratio * np.maximum(eig[:, 2], 1e-300)
-
-
-def facing_away(b):
-    """Pixels (N,) bool whose b (N, 3) does not face the camera (n_z <= 0, or not finite): an
-    orthographic camera cannot see such a surface, so no observation supports it."""
-    return ~(np.isfinite(b).all(axis=1) & (b[:, 2] > 0))
 
 
 def no_normal(status, b):
