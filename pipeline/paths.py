@@ -6,7 +6,7 @@ on where it lies. Paths are POSIX-style and relative to the session folder
 """
 
 __all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "SPHERE_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP",
-           "OBSERVATIONS", "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION",
+           "OBSERVATIONS", "LIT_OBSERVATIONS", "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION",
            "REPORT", "TRUTH_LIGHTS", "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK", "DECODE_SCRATCH",
            "TILES_SCRATCH", "SCRATCH", "linear_frame", "saturation_frame"]
 
@@ -40,6 +40,8 @@ RESIDUAL = "normals/residual.exr"
 STATUS_MAP = "normals/status.png"
 #: per pixel, the number of observations the fit used (16-bit)
 OBSERVATIONS = "normals/observations.png"
+#: per pixel, the number of its observations above the shadow threshold (16-bit)
+LIT_OBSERVATIONS = "normals/lit.png"
 #: eval -> report
 ERROR_MAP = "normals/error.png"
 EVAL = "normals/eval.yaml"

@@ -122,7 +122,8 @@ class Biquadratic:
             b[idx], coeffs[idx], rss[idx] = b_fit[take], c_fit[take], rss_fit[take]
             status[idx] = np.where(moving[take], STATUS["not_converged"], code)
             todo = todo[~take]
-        return {"b": b, "status": no_normal(status, b), "used": used, "rss": rss, "params": to_paper_order(coeffs)}
+        return {"b": b, "status": no_normal(status, b), "used": used, "lit": base.sum(axis=1), "rss": rss,
+                "params": to_paper_order(coeffs)}
 
 
 METHODS.register("biquadratic", Biquadratic())

@@ -28,13 +28,15 @@ from .methods import STATUS
 from .near_lights import PointLights, observations_at
 
 __all__ = ["Context", "ChunkRun", "OnePhase", "phases_of", "gatherer", "prepare_context", "solve_chunk",
-           "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS",
+           "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS", "CHUNK_KEYS",
            "NO_NORMAL"]
 
 #: statuses without a normal (zero in the maps)
 NO_NORMAL = (STATUS["too_few"], STATUS["shadowed"], STATUS["ill_posed"])
 #: what a method's context reports in the result: the shared shape and its check
 SHARED_KEYS = ("shape_paper", "shape_check")
+#: what a solved chunk holds, per pixel (a method without "lit" counts its used observations)
+CHUNK_KEYS = ("b", "status", "used", "lit", "rss", "params")
 #: Pixels per chunk (memory per chunk is about CHUNK_SIZE x K x 200 bytes)
 CHUNK_SIZE = 2048
 #: Bytes of observations (float64) a worker holds selected ahead while the shared context is
@@ -157,7 +159,8 @@ def allocate_maps(shape, n_params):
     h, w = shape
     return {"normals": np.zeros((h, w, 3), np.float32), "status": np.zeros((h, w), np.uint8),
             "albedo": np.zeros((h, w), np.float32), "params": np.zeros((h, w, n_params), np.float32),
-            "residual": np.zeros((h, w), np.float32), "used": np.zeros((h, w), np.uint16)}
+            "residual": np.zeros((h, w), np.float32), "used": np.zeros((h, w), np.uint16),
+            "lit": np.zeros((h, w), np.uint16)}
 
 
 def scatter_chunk(maps, idx, chunk):
@@ -175,6 +178,7 @@ def scatter_chunk(maps, idx, chunk):
     rms = np.sqrt(np.maximum(chunk["rss"], 0) / used) / np.where(ok, albedo, 1.0)
     maps["residual"][rows, cols] = np.where(ok, np.nan_to_num(rms), 0.0)
     maps["used"][rows, cols] = chunk["used"]
+    maps["lit"][rows, cols] = chunk["lit"] if "lit" in chunk else chunk["used"]
 
 
 def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_size=CHUNK_SIZE, workers=None,

@@ -48,6 +48,9 @@ class PhotometricResult:
         Root-mean-square residual over the used observations, relative to the albedo.
     used : ndarray (H, W) uint16
         Number of observations used per pixel.
+    lit : ndarray (H, W) uint16
+        Number of observations above the shadow threshold per pixel (the ones the selection
+        chose from; ``used`` for methods that use every valid observation).
     """
 
     normals: np.ndarray
@@ -61,6 +64,7 @@ class PhotometricResult:
     options: dict = field(default_factory=dict)
     seconds: float = 0.0
     shared_shape: np.ndarray = None
+    lit: np.ndarray = None
 
 
 @dataclass
@@ -259,7 +263,7 @@ def result_from_maps(maps, mask, method, options, shared, seconds=0.0):
     return PhotometricResult(
         normals=maps["normals"], mask=mask, status=maps["status"], albedo=maps["albedo"], params=maps["params"],
         residual=maps["residual"], used=maps["used"], method=method, options=options, seconds=seconds,
-        shared_shape=shared.get("shape_paper"))
+        shared_shape=shared.get("shape_paper"), lit=maps["lit"])
 
 
 def _anchored(solve, lights, insist=False, probe=None):

@@ -87,7 +87,7 @@ def lambert_method(obs, valid, lights, context=None, **_):
     b = lambert_weighted(obs, lights, weights)
     status, used = base_status(weights, weights, lights)
     rss = np.sum(weights * (obs - shading(b, lights)) ** 2, axis=1)
-    return {"b": b, "status": no_normal(status, b), "used": used, "rss": rss,
+    return {"b": b, "status": no_normal(status, b), "used": used, "lit": used, "rss": rss,
             "params": np.linalg.norm(b, axis=1)[:, None]}
 
 
@@ -97,7 +97,7 @@ def lambert_low_method(obs, valid, lights, context=None, **options):
     base, weights, b = select_observations(obs, valid, lights, **options)
     status, used = base_status(weights, base, lights)
     rss = np.sum(weights * (obs - shading(b, lights)) ** 2, axis=1)
-    return {"b": b, "status": no_normal(status, b), "used": used, "rss": rss,
+    return {"b": b, "status": no_normal(status, b), "used": used, "lit": base.sum(axis=1), "rss": rss,
             "params": np.linalg.norm(b, axis=1)[:, None]}
 
 
@@ -135,7 +135,7 @@ class ModelAlternation:
         albedo = np.nanmean(np.where(weights > 0, model.evaluate(params, Geometry.from_vectors(n, lights)), np.nan),
                             axis=1)
         b = n * np.nan_to_num(albedo, nan=1.0)[:, None]
-        return {"b": b, "status": no_normal(status, b), "used": used, "rss": rss,
+        return {"b": b, "status": no_normal(status, b), "used": used, "lit": base.sum(axis=1), "rss": rss,
                 "params": np.asarray(params).reshape(len(obs), -1)}
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import StageError
 from ..imageio import read_image, read_mask, write_image, write_mask, write_normal_png
 from ..lightsio import read_lights_yaml
-from ..paths import LIGHTS, OBSERVATIONS
+from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS
 from ..progress import progress as progress_bar
 from ..yamlio import plain
 from .estimate import estimate_normals
@@ -318,8 +318,10 @@ def _write_outputs(session, result):
     write_image(session.path("normals/status.png"), result.status, bits=8)
     write_image(session.path("normals/status_vis.png"), STATUS_COLOURS[result.status], bits=8)
     write_image(session.path(OBSERVATIONS), np.where(mask, result.used, 0).astype(np.uint16), bits=16)
+    lit = result.used if result.lit is None else result.lit
+    write_image(session.path(LIT_OBSERVATIONS), np.where(mask, lit, 0).astype(np.uint16), bits=16)
     return [f"normals/{n}" for n in ("normals.exr", "albedo.exr", "residual.exr", "brdf.exr", "normals.png",
-                                      "mask.png", "status.png", "status_vis.png")] + [OBSERVATIONS]
+                                      "mask.png", "status.png", "status_vis.png")] + [OBSERVATIONS, LIT_OBSERVATIONS]
 
 
 def _albedo_channels(session, result):

@@ -37,7 +37,7 @@ from ..errors import InputError, StageError
 from ..paths import LIGHTS, TILES_SCRATCH
 from ..session import Session
 from .anchor import first_verdict
-from .engine import CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context, scatter_chunk, \
+from .engine import CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context, scatter_chunk, \
     solve_chunk
 from .estimate import check_lights, plan_solve, result_from_maps
 from .stage import STAGE, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
@@ -221,7 +221,7 @@ def run_tile(plan, tile, hook=None):
             pieces.append(solve_chunk(phases, picked, plan.context, solve.options, solve.anchor))
     if hook is not None:
         hook(plan, tile)
-    keys = ("b", "status", "used", "rss", "params") + (("mismatch",) if solve.anchor else ())
+    keys = tuple(key for key in CHUNK_KEYS if pieces and key in pieces[0]) + (("mismatch",) if solve.anchor else ())
     arrays = {key: np.concatenate([p[key] for p in pieces]) for key in keys} if pieces else {}
     with atomic_path(target) as tmp:
         np.savez(tmp, idx=local + r0 * width, **arrays)
@@ -261,7 +261,7 @@ def assemble_normals(plan, tile_paths=None):
         with np.load(path) as tile:
             if tile["idx"].size == 0:
                 continue
-            chunk = {key: tile[key] for key in ("b", "status", "used", "rss", "params")}
+            chunk = {key: tile[key] for key in CHUNK_KEYS if key in tile}
             if out is None:
                 out = allocate_maps(mask.shape, chunk["params"].shape[1])
             scatter_chunk(out, tile["idx"], chunk)

@@ -147,23 +147,29 @@ def _by_count(errors, counts):
     return levels, mean, median, pixels
 
 
-def error_by_observations(series, top):
-    """Mean (solid) and median (dashed) angular error against the number of observations each
-    pixel's fit used, with the share of pixels at each count as grey bars (one series) .
+#: what an observation count counts: its axis label
+COUNTED = {"used": "observations used by the fit", "lit": "lit observations (above the shadow threshold)"}
+
+
+def error_by_observations(series, top, counted="used"):
+    """Mean (solid) and median (dashed) angular error against a per-pixel observation count,
+    with the share of pixels at each count as grey bars (one series).
 
     Parameters
     ----------
     series : list of (label, errors (H, W), counts (H, W) int)
     top : float
         Degrees at the top of the error axis (larger means are drawn at the top).
+    counted : {'used', 'lit'}
+        What the counts are (:data:`COUNTED`): the observations the fit used, or the pixel's
+        observations above the shadow threshold (where the light reached it).
     """
     data = [(label, *_by_count(e, c)) for label, e, c in series]
     data = [d for d in data if len(d[1])]
     if not data:
         return ""
     high = max(d[1].max() for d in data)
-    chart = Chart((0, high + 1), (0, top), x_label="observations used by the fit",
-                  y_label="angular error (deg)")
+    chart = Chart((0, high + 1), (0, top), x_label=COUNTED[counted], y_label="angular error (deg)")
     if len(data) == 1:
         _, levels, mean, median, pixels = data[0]
         share = pixels / pixels.sum()
@@ -177,4 +183,4 @@ def error_by_observations(series, top):
     if len(data) == 1:
         entries = [("mean", SERIES_COLOURS[0], False), ("median", SERIES_COLOURS[0], True)]
     chart.legend(entries)
-    return chart.svg("angular error against the observations used")
+    return chart.svg(f"angular error against the {COUNTED[counted]}")

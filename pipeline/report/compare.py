@@ -99,10 +99,11 @@ def compare_sessions(sessions, out, *, max_deg=ERROR_TOP_DEG):
     errors = [(label, maps.errors) for label, maps in zip(labels, all_maps) if maps.errors is not None]
     if errors:
         charts = [error_histogram(errors, scales["error"].top)]
-        counted = [(label, maps.errors, maps.observations) for label, maps in zip(labels, all_maps)
-                   if maps.errors is not None and maps.observations is not None]
-        if counted:
-            charts.append(error_by_observations(counted, scales["error"].top))
+        for kind, counts_of in (("lit", lambda m: m.lit), ("used", lambda m: m.observations)):
+            counted = [(label, maps.errors, counts_of(maps)) for label, maps in zip(labels, all_maps)
+                       if maps.errors is not None and counts_of(maps) is not None]
+            if counted:
+                charts.append(error_by_observations(counted, scales["error"].top, kind))
         body.append(("Errors against ground truth", f'<div class="charts">{"".join(charts)}</div>'))
     index = out / "index.html"
     atomic_write_text(index, html.page("psrig comparison: " + ", ".join(labels), body))

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..evaluate import ERROR_TOP_DEG, normal_errors
 from ..imageio import read_image, read_image_native, read_mask
-from ..paths import ALBEDO, DEPTH, NORMALS, NORMALS_MASK, OBSERVATIONS, RESIDUAL, SHADED, STATUS_MAP
+from ..paths import ALBEDO, DEPTH, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, RESIDUAL, SHADED, STATUS_MAP
 from ..photometric import share_text
 from .images import Scale, colour_bar, colour_map, normals_rgb, robust_max, status_legend, status_rgb, tone_map
 
@@ -52,6 +52,7 @@ class SessionMaps:
     status: np.ndarray = None
     errors: np.ndarray = None
     observations: np.ndarray = None
+    lit: np.ndarray = None
     depth: np.ndarray = None
     shaded: np.ndarray = None
     depth_unit: str = "px"
@@ -79,6 +80,8 @@ def read_maps(session):
     maps.status = None if status is None else status[:, :, 0].astype(np.int64)
     counts = _read(session, OBSERVATIONS, read_image_native)
     maps.observations = None if counts is None else counts[:, :, 0].astype(np.int64)
+    lit = _read(session, LIT_OBSERVATIONS, read_image_native)   # sessions before it: none
+    maps.lit = None if lit is None else lit[:, :, 0].astype(np.int64)
     if maps.normals is not None:
         maps.errors = normal_errors(session)[0]
     depth = _read(session, DEPTH)

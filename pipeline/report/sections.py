@@ -116,12 +116,14 @@ def scores_section(scores):
 
 
 def charts_section(maps, scale):
-    """The error histogram and the error against the observations used, when both exist."""
+    """The error histogram, and the error against the lit observations and against the ones
+    used, where those maps exist."""
     if maps.errors is None:
         return ""
     charts = [error_histogram([("errors", maps.errors)], scale.top)]
-    if maps.observations is not None and maps.observations.shape == maps.errors.shape:
-        charts.append(error_by_observations([("errors", maps.errors, maps.observations)], scale.top))
+    for counted, counts in (("lit", maps.lit), ("used", maps.observations)):
+        if counts is not None and counts.shape == maps.errors.shape:
+            charts.append(error_by_observations([("errors", maps.errors, counts)], scale.top, counted))
     return f'<div class="charts">{"".join(charts)}</div>'
 
 

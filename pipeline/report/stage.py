@@ -3,7 +3,7 @@
 The page opens from disk (relative links, no server, no network) and shows, in order: where
 the lights in use came from; every stage's warnings; the stages with their times and settings;
 the errors against ground truth when the session has it (numbers, a histogram, the error
-against the number of observations used); the result maps on stated scales, each false-colour
+against the number of lit observations and of those used); the result maps on stated scales, each false-colour
 map with its colour bar (angular error 0 .. 30 degrees unless told), the status map in the one
 status palette with names and pixel shares; the depth as a colour map, shaded, and in an
 interactive 3-D view; the lights as a hemisphere plot and a table; the calibration overlays;
@@ -21,8 +21,8 @@ from ..atomic import atomic_write_text
 from ..errors import StageError
 from ..evaluate import ERROR_TOP_DEG
 from ..imageio import read_image, write_image
-from ..paths import (ALBEDO, DEPTH, LIGHTS, NORMALS, NORMALS_MASK, OBSERVATIONS, REPORT, RESIDUAL, SHADED,
-                     STATUS_MAP)
+from ..paths import (ALBEDO, DEPTH, LIGHTS, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, REPORT,
+                     RESIDUAL, SHADED, STATUS_MAP)
 from ..session import STAGES, now_iso
 from . import html, sections
 from .images import robust_max, shrink, tone_map
@@ -35,7 +35,7 @@ INDEX = REPORT
 THUMB_SIDE = 160
 #: the page's layout version: a report of an older layout is rebuilt
 LAYOUT = 2
-_MAPS = (NORMALS, NORMALS_MASK, ALBEDO, RESIDUAL, STATUS_MAP, OBSERVATIONS, DEPTH, SHADED)
+_MAPS = (NORMALS, NORMALS_MASK, ALBEDO, RESIDUAL, STATUS_MAP, OBSERVATIONS, LIT_OBSERVATIONS, DEPTH, SHADED)
 
 
 def _sources(session):

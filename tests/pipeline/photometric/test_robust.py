@@ -93,6 +93,9 @@ def test_a_degenerate_selection_widens_rather_than_leaving_no_normal():
     solved = mask & ~no_normal
     assert (angular_error_deg(default.normals, normals, solved).mean()
             < angular_error_deg(lambert.normals, normals, solved).mean())
+    # the lit observations are the ones the selection chose from: never fewer than it used
+    assert np.all(default.lit >= default.used) and np.any(default.lit[mask] > default.used[mask])
+    assert np.array_equal(lambert.lit, lambert.used)
 
 
 def test_few_lights_fit_the_shared_shape_rather_than_fall_back():

@@ -9,7 +9,7 @@ import numpy as np
 from pipeline import runner
 from pipeline.imageio import read_image, write_image
 from pipeline.lightsio import read_lights_yaml, write_lights_yaml
-from pipeline.paths import LIGHTS, OBSERVATIONS, STATUS_MAP
+from pipeline.paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, STATUS_MAP
 from pipeline.photometric import STATUS, STATUS_NAMES
 from pipeline.photometric.methods import STATUS_PALETTE
 from pipeline.report import report_session
@@ -108,6 +108,11 @@ def test_error_histogram_and_error_against_observations(processed):
     counts[:, 20:] = np.where(counts[:, 20:], 8, 0)
     write_image(processed.path(OBSERVATIONS), counts, bits=16)
     text = page(processed)
+    assert "angular error against the observations used" in text and "lit observations" not in text
+    # where the light reached each pixel, beside what the fit used (issue 21)
+    write_image(processed.path(LIT_OBSERVATIONS), counts + np.uint16(2) * (counts > 0), bits=16)
+    text = page(processed)
+    assert "angular error against the lit observations (above the shadow threshold)" in text
     assert "angular error against the observations used" in text
 
 
