@@ -107,7 +107,7 @@ def scores_section(scores):
         if lt.get("evaluated") is False:
             parts.append(f"<h3>Light directions</h3><p>Imported, not evaluated: {escape(lt['reason'])}.</p>")
         else:
-            rows = [[escape(k), _value(v)] for k, v in lt.items() if k != "per_light_deg"]
+            rows = [[escape(k), _value(v)] for k, v in flatten(lt) if k != "per_light_deg"]
             parts.append("<h3>Light directions against ground truth (degrees)</h3>" + table(["metric", "value"], rows))
     if "depth" in scores:
         rows = [[escape(k), _value(v)] for k, v in scores["depth"].items()]
