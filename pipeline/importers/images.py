@@ -260,6 +260,8 @@ def _light_file(path, objects, intensities, notes):
     elif (lights.intensities == 1).all():
         notes.append("intensities: none given, all 1 (give --intensities FILE if the lights differ in "
                      "brightness)")
+    else:
+        notes.append(f"intensities: {lights.intensities.shape[1]} per light from {Path(str(path)).name}")
     behind = flag_behind(lights, str(path))
     if behind:
         notes.append(f"lights: {len(behind)} with z <= 0 (behind the surface) flagged in lights.yaml and left "

@@ -58,6 +58,7 @@ def test_intensities_from_columns_or_a_file_and_lights_behind(tmp_path, capsys):
     np.testing.assert_allclose(lights.intensities[0], [1, 0.9, 0.8])
     assert list(lights.flags) == [3] and "z = -0.535 <= 0" in lights.flags[3]
     assert any("1 with z <= 0" in line and "left out of the normals: 3" in line for line in import_notes(session))
+    assert any(line == f"intensities: 3 per light from {text.name}" for line in import_notes(session))
     plain = tmp_path / "d.txt"
     plain.write_text("0 0 1\n0.6 0 0.8\n0 0.6 0.8\n0.3 0.1 0.9\n")
     (tmp_path / "i.txt").write_text("1\n2\n3\n4\n")

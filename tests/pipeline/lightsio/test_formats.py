@@ -83,6 +83,13 @@ def test_unknown_formats_get_one_line_listing_the_supported_ones(tmp_path, conte
         or "v7.3" in message
 
 
+def test_a_json_or_yaml_file_of_another_shape_is_named_as_no_light_file(tmp_path):
+    path = tmp_path / "lights.json"
+    path.write_text('{"lights": [[0, 0, 1], [0.5, 0, 0.86], [0, 0.5, 0.86]]}')
+    with pytest.raises(InputError, match="not a light file psrig reads .*keys lights, no 'directions'.*OpenCV"):
+        read_lights(path)
+
+
 def test_lp_names_are_kept_and_paths_stripped(tmp_path):
     path = tmp_path / "l.lp"
     path.write_text("2\nC:\\data\\img 1.png 0 0 1\n/abs/img2.png 0.5 0 0.8\n")
