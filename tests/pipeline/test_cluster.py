@@ -70,19 +70,37 @@ def session_files(root):
 
     OpenImageIO stamps each EXR with the time of writing (capDate), and records and reports
     hold seconds, dates, the session's path and the hashes of those EXRs; everything else,
-    every pixel included, must be the same bytes.
+    every pixel included, must be the same bytes. ZIP-compressed linear frames are compared by
+    their channels and pixels, and their compressed sizes are blanked: ISA-L's deflate (like
+    other fast deflates) does not promise the same stream for the same input in every process
+    (seen in 2 of 8 full-suite runs, with every pixel equal; intel/isa-l#140).
     """
     files = {}
     for path in sorted(Path(root).rglob("*")):
         if path.is_file() and path.name not in SKIP and "raw" not in path.parts:
             data = re.sub(rb"\d{4}:\d\d:\d\d \d\d:\d\d:\d\d", b"DATE", path.read_bytes())
+            if path.suffix == ".exr" and "linear" in path.parts:
+                data = _exr_content(path)
             if path.suffix in (".yaml", ".html"):
                 data = data.replace(str(root).encode(), b"ROOT")
                 for pattern in (rb"\d{4}-\d\d-\d\dT[\d:+]+", rb"seconds: [\d.e-]+", rb"[\d.]+ s<",
-                                rb"[0-9a-f]{64}"):
+                                rb"[0-9a-f]{64}", rb"bytes: \d+", rb"estimated_ratio: [\d.]+",
+                                rb"linear_bytes</code>\s*</td><td>\d+"):
                     data = re.sub(pattern, b"X", data)
             files[str(path.relative_to(root))] = data
     return files
+
+
+def _exr_content(path):
+    """An EXR's channel names and pixel values (float32 bytes), whatever its compression."""
+    import OpenImageIO as oiio
+
+    image = oiio.ImageInput.open(str(path))
+    try:
+        names = ",".join(image.spec().channelnames).encode()
+        return names + b"|" + image.read_image(0, 0, 0, -1, "float").tobytes()
+    finally:
+        image.close()
 
 
 @pytest.fixture(scope="module")
