@@ -123,13 +123,22 @@ def flag_behind(lights, where="lights"):
     return [int(k) for k in behind]
 
 
-def read_lights_yaml(path):
-    """Read ``lights.yaml`` into a :class:`LightSet`, naming the key at fault on error."""
+def read_lights_yaml(path, foreign=None):
+    """Read ``lights.yaml`` into a :class:`LightSet`, naming the key at fault on error.
+
+    ``foreign``: for a file the user named as a light file, what to add when the document has
+    no ``directions`` (it is then some other YAML or JSON, not a lights.yaml missing a key).
+    """
     path = Path(path)
     try:
         data = load_yaml(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: not valid YAML: {exc}") from None
+    if foreign and not (isinstance(data, dict) and "directions" in data):
+        found = f"keys {', '.join(map(str, list(data)[:6]))}" if isinstance(data, dict) else \
+            f"a {type(data).__name__}"
+        raise InputError(f"{path}: not a light file psrig reads (a YAML/JSON document with {found}, no "
+                         f"'directions'); {foreign}")
     if not isinstance(data, dict) or "directions" not in data:
         raise InputError(f"{path}: missing key 'directions'")
     try:

@@ -4,10 +4,8 @@
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ..errors import InputError
-from ..yamlio import load_yaml
 from .arrays import MAT_V73, read_array
 from .core import LightSet, check_intensities, read_lights_yaml
 from .text import looks_like_lp, read_lights_text, read_lp, split_columns
@@ -87,8 +85,7 @@ def read_lights(path, count=None):
         raise InputError(f"{path}: ':{name}' names an array, but this is a {kind} file")
     source = f"imported from {path.name}" + (f":{name}" if name else "")
     if kind == "yaml":
-        _check_psrig_yaml(path)
-        return read_lights_yaml(path)
+        return read_lights_yaml(path, foreign=f"it reads {LIGHT_FORMATS}")
     if kind == "lp":
         names, directions = read_lp(path)
         return LightSet(directions, filenames=names, source=source)
@@ -100,20 +97,6 @@ def read_lights(path, count=None):
     if intensities is not None:
         intensities = check_intensities(intensities, len(directions), f"{path}: intensity columns")
     return LightSet(directions, intensities, source=source)
-
-
-def _check_psrig_yaml(path):
-    """A YAML or JSON file that is not psrig's lights.yaml (no ``directions``) is named as such,
-    with its keys and the formats psrig reads, rather than as a lights.yaml missing a key."""
-    try:
-        data = load_yaml(path.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, InputError, UnicodeDecodeError):
-        return   # read_lights_yaml says what is wrong with it
-    if isinstance(data, dict) and "directions" in data:
-        return
-    found = f"keys {', '.join(map(str, list(data)[:6]))}" if isinstance(data, dict) else f"a {type(data).__name__}"
-    raise InputError(f"{path}: not a light file psrig reads (a YAML/JSON document with {found}, no "
-                     f"'directions'); it reads {LIGHT_FORMATS}")
 
 
 def read_intensities(path, count):
