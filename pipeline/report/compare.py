@@ -18,8 +18,6 @@ from ..imageio import write_image
 from ..photometric import share_text
 from ..session import now_iso
 from . import html, sections
-from .charts import error_by_observations, error_histogram
-from .details import flatten, format_value
 from .maps import bar_figures, choose_scales, map_figures, read_maps
 
 __all__ = ["compare_sessions", "prepare_compare_folder", "MARK", "ROWS"]
@@ -54,8 +52,7 @@ def _summary_table(sessions, labels, scores):
     rows = []
     for session, label, score in zip(sessions, labels, scores):
         normals = session.stage("normals") or {}
-        settings = "<br>".join(f"<code>{html.escape(k)} = {html.escape(format_value(v))}</code>"
-                               for k, v in flatten(normals.get("params") or {})) or "not run"
+        settings = sections.settings_cell(normals.get("params")) if normals else "not run"
         counts = normals.get("status_counts") or {}
         total = sum(counts.values()) or 1
         shares = "<br>".join(f"{html.escape(k)} {html.escape(share_text(v, total))}" for k, v in counts.items() if v)
@@ -96,15 +93,9 @@ def compare_sessions(sessions, out, *, max_deg=ERROR_TOP_DEG):
     body = [(None, f"<p>{len(sessions)} sessions on the same scales; written {html.escape(now_iso())}.</p>"),
             ("Sessions", _summary_table(sessions, labels, scores)),
             ("Maps", _maps_table(labels, columns, bars))]
-    errors = [(label, maps.errors) for label, maps in zip(labels, all_maps) if maps.errors is not None]
-    if errors:
-        charts = [error_histogram(errors, scales["error"].top)]
-        for kind, counts_of in (("lit", lambda m: m.lit), ("used", lambda m: m.observations)):
-            counted = [(label, maps.errors, counts_of(maps)) for label, maps in zip(labels, all_maps)
-                       if maps.errors is not None and counts_of(maps) is not None]
-            if counted:
-                charts.append(error_by_observations(counted, scales["error"].top, kind))
-        body.append(("Errors against ground truth", f'<div class="charts">{"".join(charts)}</div>'))
+    charts = sections.error_charts(list(zip(labels, all_maps)), scales["error"].top)
+    if charts:
+        body.append(("Errors against ground truth", charts))
     index = out / "index.html"
     atomic_write_text(index, html.page("psrig comparison: " + ", ".join(labels), body))
     return index

@@ -14,6 +14,7 @@ from .html import details, escape, table
 from .lights import hemisphere_svg, light_rows
 
 __all__ = ["lights_in_use", "lights_origin", "header", "stages_table", "scores_section", "charts_section",
+           "error_charts", "settings_cell",
            "lights_section", "details_section", "mesh_section", "all_warnings"]
 
 
@@ -52,7 +53,8 @@ def all_warnings(session, lights):
     return found
 
 
-def _settings(params):
+def settings_cell(params):
+    """A stage's settings (``params``), one ``key = value`` per line ('defaults' when none)."""
     rows = [f"<code>{escape(k)} = {escape(format_value(v))}</code>" for k, v in flatten(params or {})
             if not k.startswith("stages")]
     return "<br>".join(rows) or "defaults"
@@ -86,7 +88,7 @@ def stages_table(session):
         seconds = record.get("seconds")
         warned = len(record.get("warnings") or [])
         rows.append([name, escape(str(record.get("status", "ok"))), "" if seconds is None else f"{seconds:.2f} s",
-                     escape(str(record.get("finished", ""))), _settings(record.get("params")),
+                     escape(str(record.get("finished", ""))), settings_cell(record.get("params")),
                      _outcomes(name, record), f'<span class="flag">{warned}</span>' if warned else "0"])
     return table(["stage", "status", "time", "finished", "settings", "outcome", "warnings"], rows)
 
@@ -116,14 +118,24 @@ def scores_section(scores):
 
 
 def charts_section(maps, scale):
+    """One session's error charts (:func:`error_charts`)."""
+    return error_charts([("errors", maps)], scale.top)
+
+
+def error_charts(series, top):
     """The error histogram, and the error against the lit observations and against the ones
-    used, where those maps exist."""
-    if maps.errors is None:
+    used, for ``series`` [(label, SessionMaps)] with errors and those maps ('' when none has
+    errors)."""
+    errors = [(label, maps.errors) for label, maps in series if maps.errors is not None]
+    if not errors:
         return ""
-    charts = [error_histogram([("errors", maps.errors)], scale.top)]
-    for counted, counts in (("lit", maps.lit), ("used", maps.observations)):
-        if counts is not None and counts.shape == maps.errors.shape:
-            charts.append(error_by_observations([("errors", maps.errors, counts)], scale.top, counted))
+    charts = [error_histogram(errors, top)]
+    for counted in ("lit", "used"):
+        counts = [(label, maps.errors, maps.lit if counted == "lit" else maps.observations)
+                  for label, maps in series if maps.errors is not None]
+        counts = [(label, e, c) for label, e, c in counts if c is not None and c.shape == e.shape]
+        if counts:
+            charts.append(error_by_observations(counts, top, counted))
     return f'<div class="charts">{"".join(charts)}</div>'
 
 
