@@ -15,9 +15,8 @@ import argparse
 import numpy as np
 
 from pipeline.experiments.synthetic import angular_error_deg, cook_torrance_images, hemisphere_lights, sphere_normals
-from pipeline.photometric import STATUS, estimate_normals
-
-NO_NORMAL = [STATUS["shadowed"], STATUS["too_few"], STATUS["ill_posed"]]
+from pipeline.photometric import estimate_normals
+from pipeline.photometric.engine import NO_NORMAL
 
 
 def scene(count, seed, size):

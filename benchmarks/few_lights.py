@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.experiments.synthetic import angular_error_deg
 from pipeline.importers import read_diligent
 from pipeline.photometric import estimate_normals
 
@@ -23,8 +24,7 @@ METHODS = ("lambert", "lambert-low", "biquadratic")
 
 
 def mean_error(normals, truth, mask):
-    cos = np.clip(np.sum(normals[mask] * truth[mask], axis=1), -1, 1)
-    return float(np.degrees(np.arccos(cos)).mean())
+    return float(angular_error_deg(normals, truth, mask).mean())
 
 
 def subsets(count, lights, n, seed):

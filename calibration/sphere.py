@@ -375,8 +375,7 @@ def _combine(parts, circles, K):
             f"sphere {s}: {why}" for s, why in enumerate(reasons))
     stacked = np.stack([p[3] for p in parts])
     # a light no sphere saw has no uncertainty (NaN, and it is flagged), not a warning
-    unc = np.where(np.isnan(stacked), -np.inf, stacked).max(axis=0)
-    unc[np.isinf(unc)] = np.nan
+    unc = np.fmax.reduce(stacked, axis=0)   # NaN only where every sphere has NaN
     method = (("perspective" if K is not None else "orthographic")
               + f" chrome sphere x{len(circles)}, direction-weighted highlight")
     return SphereCalibration(directions, circles, np.stack([p[1] for p in parts]), per, flags,

@@ -88,7 +88,7 @@ def analyse_raw(data, shutter=None, light=None):
     values = (mosaic - level) / np.maximum(white - level, 1.0)
     percentiles, clipped = {}, {}
     for index, name in enumerate(names[:4]):
-        channel = {"G": "G"}.get(name, name)
+        channel = name
         site = colours == index
         if not site.any():
             continue

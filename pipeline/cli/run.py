@@ -170,7 +170,9 @@ def _details(summary):
             more = f" and {len(stage['outputs']) - len(shown)} more" if len(stage["outputs"]) > len(shown) else ""
             yield f"{root}: {stage['name']}: outputs: {', '.join(shown)}{more}"
     if summary["status_shares"]:
-        shares = ", ".join(f"{name} {share:.1%}" for name, share in summary["status_shares"].items())
+        from ..photometric import share_text   # after a run: photometric stereo is loaded already
+
+        shares = ", ".join(f"{name} {share_text(share, 1.0)}" for name, share in summary["status_shares"].items())
         yield f"{root}: normals: status: {shares}"
     for key, path in summary["outputs"].items():
         yield f"{root}: {key}: {path}"

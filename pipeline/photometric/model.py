@@ -41,10 +41,6 @@ def powers(v, top):
         out.append(out[-1] * v)
     return np.stack(out[: top + 1], axis=-1)
 
-def _project(weighted, ypow):
-    """sum_k weighted[n, k] * ypow[(n,) k, j] -> (N, J) for shared or per-pixel y."""
-    return weighted @ ypow if ypow.ndim == 2 else np.einsum("nk,nkj->nj", weighted, ypow)
-
 def shape_and_slope(coeffs, x, y3):
     """rho and d rho / dx, each (N, K), for coefficients C (N, 3, 3) or (3, 3).
 

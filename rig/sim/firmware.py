@@ -333,14 +333,6 @@ class SimulatedLightFirmware:
 
     # -- the protocol -------------------------------------------------------------------------
 
-    def execute(self, text):
-        """Carry out one command line (str or bytes, no line end); the reply line (str, no
-        ``\n``), or None when the line holds no command (blanks and tabs only)."""
-        line = text.encode("latin-1") if isinstance(text, str) else bytes(text)
-        with self._lock:
-            reply = self._execute(line)
-        return None if reply is None else reply.decode("latin-1")
-
     def _execute(self, line):
         """The sketch's ``execute()``: words split at blanks and tabs (strtok), at most four
         read; the reply line (bytes, no line end) or None."""
