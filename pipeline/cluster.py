@@ -162,15 +162,9 @@ def run_batch(roots, *, scheduler=None, jobs=2, options=None, force=False, start
     roots = [str(Path(r)) for r in roots]
     options = options or {}
     forced = set(STAGES if force else STAGES[STAGES.index(start):] if start else ())
-    sessions = lock_sessions(roots, "run", wait=wait, echo=echo)
-    try:
-        with open_client(scheduler, jobs) as client, \
-                progress(total=len(roots), desc="sessions+tiles", unit="task", disable=not show_progress) as bar:
-            outcomes = _drive(client, sessions, options, forced, stop, tile_pixels, tile_hook, bar, echo)
-    finally:
-        for session in sessions.values():
-            if isinstance(session, Session):
-                session.release()
+    with lock_sessions(roots, "run", wait=wait, echo=echo) as sessions, open_client(scheduler, jobs) as client, \
+            progress(total=len(roots), desc="sessions+tiles", unit="task", disable=not show_progress) as bar:
+        outcomes = _drive(client, sessions, options, forced, stop, tile_pixels, tile_hook, bar, echo)
     return [outcomes[root] for root in roots]
 
 

@@ -12,6 +12,7 @@ tests may replace with stubs.
 """
 
 import concurrent.futures
+import contextlib
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -268,9 +269,22 @@ def _run_one(root, options, force, start, stop, jobs, token):
     return outcome
 
 
+@contextlib.contextmanager
 def lock_sessions(roots, command, *, wait=False, echo=None):
-    """{root: Session holding its lock, or a SessionOutcome with the error} for each root."""
-    sessions, seen = {}, {}
+    """Context manager: {root: Session holding its lock, or a SessionOutcome with the error}
+    for each root; every lock taken is released on leaving, however it is left."""
+    sessions = {}
+    try:
+        yield _locked(roots, command, wait, echo, sessions)
+    finally:
+        for session in sessions.values():
+            if isinstance(session, Session):
+                session.release()
+
+
+def _locked(roots, command, wait, echo, sessions):
+    """Fill ``sessions`` as it goes (so that an interrupted wait still releases what it took)."""
+    seen = {}
     for root in roots:
         say = (lambda line, root=root: echo(f"{root}: {line}")) if echo else None
         same = seen.setdefault(Path(root).resolve(), root)
@@ -310,18 +324,16 @@ def run_sessions(roots, *, options=None, force=False, start=None, stop=None, job
                 outcome.error = str(exc)
             outcomes.append(outcome)
         return outcomes
-    sessions, outcomes = lock_sessions(roots, "run", wait=wait, echo=echo), {}
+    outcomes = {}
     context = worker_context()
-    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=watch_lifeline,
-                                                initargs=(lifeline(context),)) as pool:
+    with lock_sessions(roots, "run", wait=wait, echo=echo) as sessions, \
+            concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=watch_lifeline,
+                                                   initargs=(lifeline(context),)) as pool:
         # one decode worker per session: the sessions already share the cores
         futures = {root: pool.submit(_run_one, root, options, force, start, stop, 1, session.lock.token)
                    for root, session in sessions.items() if not isinstance(session, SessionOutcome)}
         for root in roots:
             outcomes[root] = futures[root].result() if root in futures else sessions[root]
-    for session in sessions.values():
-        if not isinstance(session, SessionOutcome):
-            session.release()
     outcomes = [outcomes[root] for root in roots]
     if echo:
         for outcome in outcomes:
