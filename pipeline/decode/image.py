@@ -45,6 +45,17 @@ def read_native(path):
     return pixels.reshape(spec.height, spec.width, spec.nchannels), name, spec
 
 
+def _finite(linear, path):
+    """``linear``, refused when it holds NaN or infinite values (float files can; integer ones
+    cannot): photometric stereo would silently lose every pixel they touch."""
+    finite = np.isfinite(linear)
+    if not finite.all():
+        bad = int(finite.size - np.count_nonzero(finite))
+        raise ImageFileError(f"{path}: {bad} value{'s' * (bad != 1)} NaN or infinite; a frame "
+                             "must hold finite linear values")
+    return linear
+
+
 def decode_image(path, *, gamma="auto"):
     """Read an image frame as linear RGB.
 
@@ -72,7 +83,7 @@ def decode_image(path, *, gamma="auto"):
     info = {"raw": False, "format": name, "bits": native.dtype.itemsize * 8}
     if not np.issubdtype(native.dtype, np.integer):
         info.update(transfer="linear", transfer_from="floating-point file")
-        return native.astype(np.float32), np.zeros(native.shape[:2], bool), info
+        return _finite(native.astype(np.float32), path), np.zeros(native.shape[:2], bool), info
     if native.dtype not in (np.uint8, np.uint16):
         native = (native >> (8 * (native.dtype.itemsize - 2))).astype(np.uint16)  # 32-bit integers
         info["bits"] = 16

@@ -141,7 +141,6 @@ def _decode(task):
         return exr, planes, saturated, info
     linear, saturated, info = decode_frame(source, **{k: options[k] for k in ("method", "channels",
                                                                               "binning", "gamma")})
-    _check_finite(linear, source)
     return _buffered(linear, saturated, info, (height, width))
 
 
@@ -153,8 +152,6 @@ def _exposure(member, options, size):
     source = member["source"]
     linear, saturated, info = decode_frame(source, **{k: options[k] for k in ("method", "channels",
                                                                               "binning", "gamma")})
-    if not info.get("raw"):  # raw integers are finite: the check is for float image files
-        _check_finite(linear, source)
     _check_size(linear, size)
     if member.get("reference"):
         planes = [linear[:, :, channel] for channel in range(linear.shape[2])]
@@ -176,16 +173,6 @@ def _buffered(linear, saturated, info, size):
     exr = _exr_buffer(height, width, names)
     exr.fill(linear, names)
     return exr, [exr.planes[name] for name in names], saturated, info
-
-
-def _check_finite(linear, source):
-    """Refuse NaN and infinite values (float image files can hold them; raw integers cannot):
-    photometric stereo would silently lose every pixel they touch."""
-    finite = np.isfinite(linear)
-    if not finite.all():
-        bad = int(finite.size - np.count_nonzero(finite))
-        raise ImageFileError(f"{source}: {bad} value{'s' * (bad != 1)} NaN or infinite; a frame "
-                             "must hold finite linear values")
 
 
 def _exr_buffer(height, width, names):
