@@ -234,15 +234,15 @@ def _on_frames(grey, circ):
     return seen if credible(seen, grey.shape[1:]) else circ
 
 
-def _one_sphere(grey, peak, sat, circ, mask, K):
-    """Directions, highlight centres, flags and uncertainties for one sphere."""
+def _one_sphere(grey, peak, sat, circ, mask, K, background):
+    """Directions, highlight centres, flags and uncertainties for one sphere (``background``
+    (H, W): the per-pixel median over the frames)."""
     n_lights, h, w = grey.shape
     cx, cy, r = circ.params
     rows, cols = np.mgrid[0:h, 0:w]
     disc = np.hypot(cols - cx, rows - cy) < r
     if mask is not None:
         disc &= mask
-    background = np.median(grey, axis=0)
     dirs = np.full((n_lights, 3), np.nan)
     spots = np.full((n_lights, 2), np.nan)
     unc = np.full(n_lights, np.nan)
@@ -346,12 +346,11 @@ def calibrate_sphere(images, circle=None, mask=None, *, saturation=None, K=None,
     if not chrome:
         raise SphereNotFound(f"no chrome sphere among the {len(found)} sphere(s) in view: each is shaded "
                              "broadly like a matte target; give the chrome sphere with --circle")
-    if any(c.method in ("given", "mask") for c, _ in chrome):
-        background = np.median(grey, axis=0)
-        for c, region in chrome:
-            if c.method in ("given", "mask"):
-                check_highlights_inside(grey, background, c, region)
-    parts = [_one_sphere(grey, peak, sat, c, region, K) for c, region in chrome]
+    background = np.median(grey, axis=0)   # per pixel over the frames: once for every sphere
+    for c, region in chrome:
+        if c.method in ("given", "mask"):
+            check_highlights_inside(grey, background, c, region)
+    parts = [_one_sphere(grey, peak, sat, c, region, K, background) for c, region in chrome]
     result = _combine(parts, [c for c, _ in chrome], K)
     result.targets, result.kinds = [c for c, _ in targets], kinds
     if len(chrome) > 1:
