@@ -104,16 +104,15 @@ def run(args):
             print(summary_table(outcomes), flush=True)
     else:
         outcomes = run_sessions(args.sessions, **run)
-    summaries = [session_summary(o) for o in outcomes]
-    for summary in summaries:
-        if args.json:
-            print(json.dumps(summary), flush=True)
-        elif args.verbose:
-            for line in _details(summary):
+    for outcome in outcomes:
+        if args.json or args.verbose:   # these re-open the session for its records
+            summary = session_summary(outcome)
+            for line in [json.dumps(summary)] if args.json else _details(summary):
                 print(line, flush=True)
         elif args.quiet:
-            for warning in summary["warnings"]:
-                print(f"{summary['session']}: warning: {warning}", file=sys.stderr)
+            for stage in outcome.stages:
+                for warning in stage.warnings:
+                    print(f"{outcome.root}: warning: {stage.name}: {warning}", file=sys.stderr)
     failed = [o for o in outcomes if o.error]
     for outcome in failed if not args.json else ():
         print(f"psrig run: error: {outcome.error}", file=sys.stderr)
