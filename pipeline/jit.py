@@ -18,7 +18,7 @@ import threading
 import time
 import warnings
 
-__all__ = ["Compiled", "ENV_NO_JIT", "jit_allowed", "njit"]
+__all__ = ["Compiled", "ENV_NO_JIT", "VECTORISE", "jit_allowed", "njit"]
 
 ENV_NO_JIT = "PSRIG_NO_JIT"
 
@@ -28,15 +28,23 @@ def jit_allowed():
     return os.environ.get(ENV_NO_JIT, "") in ("", "0")
 
 
-def njit(func):
+#: The fast-math flags a kernel may ask for (``njit(func, fastmath=VECTORISE)``): reassociation and
+#: contraction, so that sums over a pixel's observations vectorise (SIMD) and fuse (FMA); never
+#: 'nnan' or 'ninf', since kernels test for NaN and infinity. Results then differ from numpy's in
+#: the last bits, which the kernels' tests bound.
+VECTORISE = frozenset({"reassoc", "contract"})
+
+
+def njit(func, fastmath=False):
     """``numba.njit`` with psrig's flags: cached on disk, GIL released, numpy's error model.
 
-    fastmath stays off: the same rounding on every machine, so compiled and numpy results
-    agree to the tests' precision and iterative solvers take the same trajectory.
+    fastmath is off unless asked for (:data:`VECTORISE`): then the same rounding on every
+    machine, so compiled and numpy results agree bit for bit where the arithmetic is the same.
     """
     import numba
 
-    return numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")(func)
+    return numba.njit(cache=True, nogil=True, fastmath=set(fastmath) if fastmath else False,
+                      error_model="numpy")(func)
 
 
 class Compiled:

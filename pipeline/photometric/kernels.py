@@ -2,10 +2,12 @@
 
 :func:`fit_pixels_jit` does the work of :func:`pipeline.photometric.pixel_fit.fit_pixels_numpy`
 (each pixel's normal and 9 coefficients by Levenberg-Marquardt, the same mathematics and
-stopping rule), pixel by pixel in one pass over each pixel's used observations per step
-instead of many passes over (N, K) arrays. Lights may be shared (K, 3) or per pixel
-(N, K, 3). Everything is float64; each pixel's result depends on that pixel alone, so it is the
-same whatever chunk it is computed in.
+stopping rule), pixel by pixel: a pixel's used observations are copied into one row per
+quantity, and each sum over them (the 25 moments, the basis sums, the cost) is one loop with
+scalar accumulators, which the compiler vectorises (:data:`pipeline.jit.VECTORISE`: measured
+on DiLiGenT reading, 30 -> 9 us per pixel with the fit's variable projection and damping rule).
+Lights may be shared (K, 3) or per pixel (N, K, 3). Everything is float64; each pixel's result
+depends on that pixel alone, so it is the same whatever chunk it is computed in.
 
 Nothing is compiled at import: the kernels are compiled (or loaded from numba's on-disk cache)
 at the first call through :class:`pipeline.jit.Compiled`, under a lock, so concurrent chunk
@@ -19,7 +21,7 @@ import math
 
 import numpy as np
 
-from ..jit import ENV_NO_JIT, Compiled, njit
+from ..jit import ENV_NO_JIT, VECTORISE, Compiled, njit
 
 __all__ = ["jit_enabled", "kernels", "fit_pixels_jit", "select_robust_jit", "compile_seconds", "ENV_NO_JIT",
            "KERNELS"]
@@ -47,7 +49,7 @@ def _build():
     """Decorate the kernel functions with numba.njit and compile them on a tiny problem."""
     # The kernels call each other through module globals: those must name the dispatchers
     # while numba compiles (and the pure-Python originals are kept for a later rebuild).
-    compiled = {name: njit(func) for name, func in _PY.items()}
+    compiled = {name: njit(func, fastmath=VECTORISE) for name, func in _PY.items()}
     globals().update(compiled)
     _warm_up(compiled)
     return compiled
@@ -115,15 +117,25 @@ def _unit(v):
 # Written in plain Python over scalars so that numba compiles them; each loops over one
 # pixel's K observations a few times per step.
 
+def _scratch(k):
+    """Per-call scratch of the fit kernels (allocated once per call, not once per pixel).
+
+    ``soa`` (12, K) holds a pixel's used observations, one quantity per row so that the passes
+    over them vectorise: obs, weight, l (3 rows), h (3 rows), y^1..y^4. ``work`` (8, K) holds
+    per-observation terms: x, s at the current and the trial normal, then four weighted terms.
+    """
+    return (np.empty((12, k)), np.empty((8, k)), np.empty((3, 9, 9)), np.empty((11, 11)), np.empty((10, 11)),
+            np.empty(25), np.empty((2, 9)))
+
+
 def _fit_shared(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol, dof_below, b_out, c_out, rss_out,
                 moving_out, dof_out):
     """Every pixel of obs (N, K) under shared lights (K, 3): compact its used observations, fit."""
     n_pix, k = obs.shape
-    o, w, lt, ht, yp = np.empty(k), np.empty(k), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 5))
-    work, mats, a11, vecs = np.empty((4, k)), np.empty((3, 9, 9)), np.empty((11, 11)), np.empty((9, 11))
+    soa, work, mats, a11, vecs, mom, cols = _scratch(k)
     for p in range(n_pix):
-        m = _compact(obs[p], weights[p], lights, h, ypow, o, w, lt, ht, yp)
-        _fit_one(o, w, lt, ht, yp, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, b_out[p],
+        m = _compact(obs[p], weights[p], lights, h, ypow, soa)
+        _fit_one(soa, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, mom, cols, b_out[p],
                  c_out[p], rss_out, moving_out, dof_out, p)
 
 
@@ -131,43 +143,38 @@ def _fit_per_pixel(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol
                    rss_out, moving_out, dof_out):
     """:func:`_fit_shared` for per-pixel lights (N, K, 3), half vectors and y powers."""
     n_pix, k = obs.shape
-    o, w, lt, ht, yp = np.empty(k), np.empty(k), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 5))
-    work, mats, a11, vecs = np.empty((4, k)), np.empty((3, 9, 9)), np.empty((11, 11)), np.empty((9, 11))
+    soa, work, mats, a11, vecs, mom, cols = _scratch(k)
     for p in range(n_pix):
-        m = _compact(obs[p], weights[p], lights[p], h[p], ypow[p], o, w, lt, ht, yp)
-        _fit_one(o, w, lt, ht, yp, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, b_out[p],
+        m = _compact(obs[p], weights[p], lights[p], h[p], ypow[p], soa)
+        _fit_one(soa, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, mom, cols, b_out[p],
                  c_out[p], rss_out, moving_out, dof_out, p)
 
 
-def _compact(obs, weights, lights, h, ypow, o, w, lt, ht, yp):
-    """Copy one pixel's used observations (weight != 0) to the front of the scratch; their count."""
+def _compact(obs, weights, lights, h, ypow, soa):
+    """Copy one pixel's used observations (weight != 0) into the rows of ``soa``; their count."""
     m = 0
     for j in range(len(obs)):
         if weights[j] != 0.0:
-            o[m], w[m] = obs[j], weights[j]
+            soa[0, m], soa[1, m] = obs[j], weights[j]
             for i in range(3):
-                lt[m, i], ht[m, i] = lights[j, i], h[j, i]
-            for i in range(5):
-                yp[m, i] = ypow[j, i]
+                soa[2 + i, m], soa[5 + i, m] = lights[j, i], h[j, i]
+            for i in range(4):
+                soa[8 + i, m] = ypow[j, 1 + i]
             m += 1
     return m
 
 
-def _fit_one(o, w, lt, ht, yp, m, b0, penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, b_out, c_out,
+def _fit_one(soa, m, b0, penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, mom, cols, b_out, c_out,
              rss_out, moving_out, dof_out, p):
-    """One pixel: the linear start for c, then Levenberg-Marquardt steps; writes its results.
-
-    ``work`` (4, K), ``mats`` (3, 9, 9), ``a11`` (11, 11) and ``vecs`` (9, 11) are scratch,
-    allocated once per call of the kernel rather than once per pixel.
-    """
+    """One pixel: the linear start for c, then Levenberg-Marquardt steps; writes its results."""
     norm = math.sqrt(b0[0] * b0[0] + b0[1] * b0[1] + b0[2] * b0[2])
     n, c, rhs = vecs[0, :3], vecs[1, :9], vecs[2, :9]
     for i in range(3):
         n[i] = b0[i] / max(norm, 1e-300)
     xs, cs = work[0], work[1]
-    _geometry(n, lt, ht, xs, cs, m)
+    _geometry(n, soa, xs, cs, m)
     data, pen, a9 = mats[0], mats[1], mats[2]
-    _coefficient_system(o, w, yp, xs, cs, m, data, rhs)
+    _coefficient_system(soa, xs, cs, m, work, mom, data, rhs)
     scale = 1e-300
     for i in range(9):
         scale += data[i, i] / 9.0
@@ -176,16 +183,16 @@ def _fit_one(o, w, lt, ht, yp, m, b0, penalty, max_iter, cos_tol, dof_below, wor
             pen[i, j] = scale * penalty[i, j]
             a9[i, j] = data[i, j] + pen[i, j]
     _cholesky_solve(a9, rhs, c, 9)
-    cost = _cost(o, w, yp, xs, cs, m, c, pen)
+    cost = _cost(soa, xs, cs, m, c, pen)
     moving = 1
     if not math.isfinite(cost):
         moving = 0
     else:
-        moving = _iterate(o, w, lt, ht, yp, m, n, c, pen, cost, max_iter, cos_tol, work, a11, vecs)
-    rss, albedo = _rss_albedo(o, w, yp, xs, cs, m, c)   # xs, cs: the geometry of the final n
+        moving = _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, a11, vecs, a9, rhs)
+    rss, albedo = _rss_albedo(soa, xs, cs, m, c)   # xs, cs: the geometry of the final n
     if m < dof_below:
-        _coefficient_system(o, w, yp, xs, cs, m, data, rhs)
-        dof_out[p] = 2.0 + _hat_trace(data, pen, a9)
+        _coefficient_system(soa, xs, cs, m, work, mom, data, rhs)
+        dof_out[p] = 2.0 + _hat_trace(data, pen, a9, cols)
     else:
         dof_out[p] = 11.0
     if not (albedo > 0.0 and math.isfinite(albedo)):
@@ -198,21 +205,30 @@ def _fit_one(o, w, lt, ht, yp, m, b0, penalty, max_iter, cos_tol, dof_below, wor
     moving_out[p] = moving
 
 
-def _iterate(o, w, lt, ht, yp, m, n, c, pen, cost, max_iter, cos_tol, work, a, vecs):
+def _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, a, vecs, a9, rhs):
     """Levenberg-Marquardt steps on (n, c) in place; returns 1 while the normal still turns.
 
+    The step comes from the joint (n, c) system; the trial takes the best c for the trial normal
+    (c is linear: variable projection), and the damping follows the gain ratio (Nielsen's rule).
+    See :func:`pipeline.photometric.pixel_fit.fit_pixels_numpy`, which does the same in numpy.
     On entry and exit work[0], work[1] hold the geometry (n . h, n . l) of the current n.
     """
     e, step = vecs[3], vecs[4]
     n_try, c_try, t1, t2 = vecs[5, :3], vecs[6, :9], vecs[7, :3], vecs[8, :3]
     mu = _MU0
+    nu = 2.0
+    diag = vecs[9]
     xs, cs, xt, ct = work[0], work[1], work[2], work[3]
     for it in range(max_iter):
         _tangents(n, t1, t2)
-        _step_system(o, w, lt, ht, yp, xs, cs, m, c, t1, t2, pen, a, e)
+        _step_system(soa, xs, cs, m, c, t1, t2, pen, work, mom, a, e)
         for i in range(11):
-            a[i, i] += mu * a[i, i] + 1e-300
+            diag[i] = mu * a[i, i] + 1e-300
+            a[i, i] += diag[i]
         _cholesky_solve(a, e, step, 11)
+        predicted = 0.0
+        for i in range(11):
+            predicted += step[i] * (e[i] + diag[i] * step[i])
         s0, s1 = step[0], step[1]
         norm = 0.0
         for i in range(3):
@@ -221,10 +237,14 @@ def _iterate(o, w, lt, ht, yp, m, n, c, pen, cost, max_iter, cos_tol, work, a, v
         norm = math.sqrt(norm)
         for i in range(3):
             n_try[i] /= norm
+        _geometry(n_try, soa, xt, ct, m)
+        # variable projection: c is linear, so the trial takes the best c for n_try
+        _coefficient_system(soa, xt, ct, m, work, mom, a9, rhs)
         for i in range(9):
-            c_try[i] = c[i] + step[2 + i]
-        _geometry(n_try, lt, ht, xt, ct, m)
-        cost_try = _cost(o, w, yp, xt, ct, m, c_try, pen)
+            for q in range(9):
+                a9[i, q] += pen[i, q]
+        _cholesky_solve(a9, rhs, c_try, 9)
+        cost_try = _cost(soa, xt, ct, m, c_try, pen)
         if math.isfinite(cost_try) and cost_try <= cost:
             turned = n[0] * n_try[0] + n[1] * n_try[1] + n[2] * n_try[2]
             for i in range(3):
@@ -233,22 +253,26 @@ def _iterate(o, w, lt, ht, yp, m, n, c, pen, cost, max_iter, cos_tol, work, a, v
                 c[i] = c_try[i]
             for j in range(m):
                 xs[j], cs[j] = xt[j], ct[j]
+            gain = (cost - cost_try) / max(predicted, 1e-300)
             cost = cost_try
-            mu = max(mu / 10.0, 1e-12)
+            mu = max(mu * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12)
+            nu = 2.0
             if turned >= cos_tol:
                 return 0
         else:
-            mu *= 10.0
+            mu *= nu
+            nu *= 2.0
             if mu > _MU_MAX:
                 return 0
     return 1
 
 
-def _geometry(n, lt, ht, xs, cs, m):
+def _geometry(n, soa, xs, cs, m):
     """Fill xs = n . h and cs = n . l for the unit normal n."""
+    n0, n1, n2 = n[0], n[1], n[2]
     for j in range(m):
-        xs[j] = n[0] * ht[j, 0] + n[1] * ht[j, 1] + n[2] * ht[j, 2]
-        cs[j] = n[0] * lt[j, 0] + n[1] * lt[j, 1] + n[2] * lt[j, 2]
+        xs[j] = n0 * soa[5, j] + n1 * soa[6, j] + n2 * soa[7, j]
+        cs[j] = n0 * soa[2, j] + n1 * soa[3, j] + n2 * soa[4, j]
 
 
 def _tangents(n, t1, t2):
@@ -263,125 +287,191 @@ def _tangents(n, t1, t2):
     t2[2] = n[0] * t1[1] - n[1] * t1[0]
 
 
-def _coefficient_system(o, w, yp, xs, cs, m, data, rhs):
-    """data (9, 9) = sum_k w s^2 basis basis^T and rhs (9,) = sum_k w s o basis, basis = x^a y^c."""
-    mom = np.zeros((5, 5))
-    for i in range(9):
-        rhs[i] = 0.0
+def _moments(t, xs, soa, m, mom):
+    """mom[5 a + c] = sum_j t_j x_j^a y_j^c, a, c = 0..4: the 25 moments behind every 9 x 9 block."""
+    m00 = m01 = m02 = m03 = m04 = m10 = m11 = m12 = m13 = m14 = m20 = m21 = m22 = m23 = m24 = 0.0
+    m30 = m31 = m32 = m33 = m34 = m40 = m41 = m42 = m43 = m44 = 0.0
     for j in range(m):
-        x, s = xs[j], cs[j]
-        t = w[j] * s * s
-        u = w[j] * s * o[j]
-        xp = 1.0
-        for a in range(5):
-            for cc in range(5):
-                mom[a, cc] += t * xp * yp[j, cc]
-            if a < 3:
-                for cc in range(3):
-                    rhs[3 * a + cc] += u * xp * yp[j, cc]
-            xp *= x
+        y1, y2, y3, y4 = soa[8, j], soa[9, j], soa[10, j], soa[11, j]
+        x = xs[j]
+        p0 = t[j]
+        p1 = p0 * x
+        p2 = p1 * x
+        p3 = p2 * x
+        p4 = p3 * x
+        m00 += p0
+        m01 += p0 * y1
+        m02 += p0 * y2
+        m03 += p0 * y3
+        m04 += p0 * y4
+        m10 += p1
+        m11 += p1 * y1
+        m12 += p1 * y2
+        m13 += p1 * y3
+        m14 += p1 * y4
+        m20 += p2
+        m21 += p2 * y1
+        m22 += p2 * y2
+        m23 += p2 * y3
+        m24 += p2 * y4
+        m30 += p3
+        m31 += p3 * y1
+        m32 += p3 * y2
+        m33 += p3 * y3
+        m34 += p3 * y4
+        m40 += p4
+        m41 += p4 * y1
+        m42 += p4 * y2
+        m43 += p4 * y3
+        m44 += p4 * y4
+    mom[0], mom[1], mom[2], mom[3], mom[4] = m00, m01, m02, m03, m04
+    mom[5], mom[6], mom[7], mom[8], mom[9] = m10, m11, m12, m13, m14
+    mom[10], mom[11], mom[12], mom[13], mom[14] = m20, m21, m22, m23, m24
+    mom[15], mom[16], mom[17], mom[18], mom[19] = m30, m31, m32, m33, m34
+    mom[20], mom[21], mom[22], mom[23], mom[24] = m40, m41, m42, m43, m44
+
+
+def _basis_sums(u, xs, soa, m, out):
+    """out[3 a + c] = sum_j u_j x_j^a y_j^c, a, c = 0..2 (the biquadratic's 9 basis functions)."""
+    s00 = s01 = s02 = s10 = s11 = s12 = s20 = s21 = s22 = 0.0
+    for j in range(m):
+        y1, y2 = soa[8, j], soa[9, j]
+        p0 = u[j]
+        p1 = p0 * xs[j]
+        p2 = p1 * xs[j]
+        s00 += p0
+        s01 += p0 * y1
+        s02 += p0 * y2
+        s10 += p1
+        s11 += p1 * y1
+        s12 += p1 * y2
+        s20 += p2
+        s21 += p2 * y1
+        s22 += p2 * y2
+    out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7], out[8] = s00, s01, s02, s10, s11, s12, s20, s21, s22
+
+
+def _spread_moments(mom, out, offset):
+    """out[offset + r, offset + q] += the (r, q) entry of the 9 x 9 block of ``mom``."""
     for r in range(9):
         for q in range(9):
-            data[r, q] = mom[r // 3 + q // 3, r % 3 + q % 3]
+            out[offset + r, offset + q] += mom[5 * (r // 3 + q // 3) + r % 3 + q % 3]
 
 
-def _step_system(o, w, lt, ht, yp, xs, cs, m, c, t1, t2, pen, a, e):
-    """The Gauss-Newton normal equations a (11, 11), e (11,) at (n, c), the penalty included."""
-    mom = np.zeros((5, 5))
-    for i in range(11):
-        e[i] = 0.0
-        for q in range(11):
-            a[i, q] = 0.0
+def _coefficient_system(soa, xs, cs, m, work, mom, data, rhs):
+    """data (9, 9) = sum_k w s^2 basis basis^T and rhs (9,) = sum_k w s o basis, basis = x^a y^c."""
+    t, u = work[4], work[5]
     for j in range(m):
-        x, s = xs[j], cs[j]
-        y1, y2 = yp[j, 1], yp[j, 2]
-        q0 = c[0] + c[1] * y1 + c[2] * y2
-        q1 = c[3] + c[4] * y1 + c[5] * y2
-        q2 = c[6] + c[7] * y1 + c[8] * y2
-        rho = q0 + x * (q1 + x * q2)
+        ws = soa[1, j] * cs[j]
+        t[j] = ws * cs[j]
+        u[j] = ws * soa[0, j]
+    _moments(t, xs, soa, m, mom)
+    for r in range(9):
+        for q in range(9):
+            data[r, q] = 0.0
+    _spread_moments(mom, data, 0)
+    _basis_sums(u, xs, soa, m, rhs)
+
+
+def _step_system(soa, xs, cs, m, c, t1, t2, pen, work, mom, a, e):
+    """The Gauss-Newton normal equations a (11, 11), e (11,) at (n, c), the penalty included."""
+    t, u1, u2, ur = work[4], work[5], work[6], work[7]
+    c0, c1, c2, c3, c4, c5, c6, c7, c8 = c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]
+    a00 = a01 = a11 = e0 = e1 = 0.0
+    for j in range(m):
+        x, s, wj = xs[j], cs[j], soa[1, j]
+        y1, y2 = soa[8, j], soa[9, j]
+        q1 = c3 + c4 * y1 + c5 * y2
+        q2 = c6 + c7 * y1 + c8 * y2
+        rho = (c0 + c1 * y1 + c2 * y2) + x * (q1 + x * q2)
         slope = q1 + 2.0 * x * q2
-        res = o[j] - rho * s
-        h1 = t1[0] * ht[j, 0] + t1[1] * ht[j, 1] + t1[2] * ht[j, 2]
-        l1 = t1[0] * lt[j, 0] + t1[1] * lt[j, 1] + t1[2] * lt[j, 2]
-        h2 = t2[0] * ht[j, 0] + t2[1] * ht[j, 1] + t2[2] * ht[j, 2]
-        l2 = t2[0] * lt[j, 0] + t2[1] * lt[j, 1] + t2[2] * lt[j, 2]
+        res = soa[0, j] - rho * s
+        h1 = t1[0] * soa[5, j] + t1[1] * soa[6, j] + t1[2] * soa[7, j]
+        l1 = t1[0] * soa[2, j] + t1[1] * soa[3, j] + t1[2] * soa[4, j]
+        h2 = t2[0] * soa[5, j] + t2[1] * soa[6, j] + t2[2] * soa[7, j]
+        l2 = t2[0] * soa[2, j] + t2[1] * soa[3, j] + t2[2] * soa[4, j]
         g1 = slope * s * h1 + rho * l1
         g2 = slope * s * h2 + rho * l2
-        wj = w[j]
-        a[0, 0] += wj * g1 * g1
-        a[0, 1] += wj * g1 * g2
-        a[1, 1] += wj * g2 * g2
-        e[0] += wj * g1 * res
-        e[1] += wj * g2 * res
-        t = wj * s * s
-        u1, u2, ur = wj * g1 * s, wj * g2 * s, wj * res * s
-        xp = 1.0
-        for aa in range(5):
-            for cc in range(5):
-                mom[aa, cc] += t * xp * yp[j, cc]
-            if aa < 3:
-                for cc in range(3):
-                    v = xp * yp[j, cc]
-                    a[0, 2 + 3 * aa + cc] += u1 * v
-                    a[1, 2 + 3 * aa + cc] += u2 * v
-                    e[2 + 3 * aa + cc] += ur * v
-            xp *= x
-    a[1, 0] = a[0, 1]
+        wg1, wg2 = wj * g1, wj * g2
+        a00 += wg1 * g1
+        a01 += wg1 * g2
+        a11 += wg2 * g2
+        e0 += wg1 * res
+        e1 += wg2 * res
+        t[j] = wj * s * s
+        u1[j] = wg1 * s
+        u2[j] = wg2 * s
+        ur[j] = wj * res * s
+    for i in range(11):
+        for q in range(11):
+            a[i, q] = 0.0
+    a[0, 0], a[0, 1], a[1, 0], a[1, 1] = a00, a01, a01, a11
+    e[0], e[1] = e0, e1
+    _moments(t, xs, soa, m, mom)
+    _spread_moments(mom, a, 2)
+    _basis_sums(u1, xs, soa, m, a[0, 2:])
+    _basis_sums(u2, xs, soa, m, a[1, 2:])
+    _basis_sums(ur, xs, soa, m, e[2:])
     for r in range(9):
         a[2 + r, 0] = a[0, 2 + r]
         a[2 + r, 1] = a[1, 2 + r]
         penalty_c = 0.0
         for q in range(9):
-            a[2 + r, 2 + q] = mom[r // 3 + q // 3, r % 3 + q % 3] + pen[r, q]
+            a[2 + r, 2 + q] += pen[r, q]
             penalty_c += pen[r, q] * c[q]
         e[2 + r] -= penalty_c
 
 
-def _rho(c, x, y1, y2):
-    """The biquadratic reflectance at x = n.h, y = l.h (y1 = y, y2 = y^2) for coefficients c (9,)."""
-    return (c[0] + c[1] * y1 + c[2] * y2) + x * ((c[3] + c[4] * y1 + c[5] * y2) + x * (c[6] + c[7] * y1 + c[8] * y2))
-
-
-def _cost(o, w, yp, xs, cs, m, c, pen):
-    """sum_k w (obs - R s)^2 + c' pen c."""
+def _penalty_value(c, pen):
     total = 0.0
-    for j in range(m):
-        rho = _rho(c, xs[j], yp[j, 1], yp[j, 2])
-        r = o[j] - rho * cs[j]
-        total += w[j] * r * r
     for i in range(9):
         for q in range(9):
             total += c[i] * pen[i, q] * c[q]
     return total
 
 
-def _rss_albedo(o, w, yp, xs, cs, m, c):
+def _cost(soa, xs, cs, m, c, pen):
+    """sum_k w (obs - R s)^2 + c' pen c."""
+    c0, c1, c2, c3, c4, c5, c6, c7, c8 = c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]
+    total = 0.0
+    for j in range(m):
+        x, y1, y2 = xs[j], soa[8, j], soa[9, j]
+        rho = (c0 + c1 * y1 + c2 * y2) + x * ((c3 + c4 * y1 + c5 * y2) + x * (c6 + c7 * y1 + c8 * y2))
+        r = soa[0, j] - rho * cs[j]
+        total += soa[1, j] * r * r
+    return total + _penalty_value(c, pen)
+
+
+def _rss_albedo(soa, xs, cs, m, c):
     """The data term and the mean of R over the used observations."""
+    c0, c1, c2, c3, c4, c5, c6, c7, c8 = c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]
     rss = 0.0
     level = 0.0
     count = 0.0
     for j in range(m):
-        rho = _rho(c, xs[j], yp[j, 1], yp[j, 2])
-        r = o[j] - rho * cs[j]
-        rss += w[j] * r * r
-        level += w[j] * rho
-        count += w[j]
+        x, y1, y2, wj = xs[j], soa[8, j], soa[9, j], soa[1, j]
+        rho = (c0 + c1 * y1 + c2 * y2) + x * ((c3 + c4 * y1 + c5 * y2) + x * (c6 + c7 * y1 + c8 * y2))
+        r = soa[0, j] - rho * cs[j]
+        rss += wj * r * r
+        level += wj * rho
+        count += wj
     return rss, level / max(count, 1e-300)
 
 
-def _hat_trace(data, pen, a):
+def _hat_trace(data, pen, a, cols):
     """trace((data + pen)^-1 data): the coefficients' effective number of parameters (a (9, 9)
-    is scratch)."""
-    col = np.empty(9)
-    out = np.empty(9)
+    and cols (2, 9) are scratch); data + pen is factored once."""
+    for i in range(9):
+        for r in range(9):
+            a[i, r] = data[i, r] + pen[i, r]
+    if not _cholesky_factor(a, 9):
+        return np.nan
+    col, out = cols[0], cols[1]
     total = 0.0
     for q in range(9):
         for i in range(9):
             col[i] = data[i, q]
-        for i in range(9):
-            for r in range(9):
-                a[i, r] = data[i, r] + pen[i, r]
-        _cholesky_solve(a, col, out, 9)
+        _cholesky_substitute(a, col, out, 9)
         total += out[q]
     return total
 
@@ -391,14 +481,21 @@ def _cholesky_solve(a, rhs, out, size):
 
     a is overwritten by its Cholesky factor (lower triangle).
     """
+    if _cholesky_factor(a, size):
+        _cholesky_substitute(a, rhs, out, size)
+    else:
+        for i in range(size):
+            out[i] = np.nan
+
+
+def _cholesky_factor(a, size):
+    """a's lower triangle := its Cholesky factor; False if a is not positive definite."""
     for j in range(size):
         d = a[j, j]
         for k in range(j):
             d -= a[j, k] * a[j, k]
         if not d > 0.0:
-            for i in range(size):
-                out[i] = np.nan
-            return
+            return False
         d = math.sqrt(d)
         a[j, j] = d
         for i in range(j + 1, size):
@@ -406,6 +503,11 @@ def _cholesky_solve(a, rhs, out, size):
             for k in range(j):
                 v -= a[i, k] * a[j, k]
             a[i, j] = v / d
+    return True
+
+
+def _cholesky_substitute(a, rhs, out, size):
+    """out = (L L')^-1 rhs for the factor L in a's lower triangle."""
     for i in range(size):
         v = rhs[i]
         for k in range(i):
@@ -465,17 +567,22 @@ def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, floor,
             if w[j] > 0.0:
                 sort32[c] = np.float32(abs(scratch[j]))
                 c += 1
-        scale = 1.4826 * np.float64(_kth_smallest(sort32, c, c // 2)) + 1e-9 if c > 0 else 1e-9
+        scale = 1.4826 * np.float64(_kth_by_bits(sort32, sort32.view(np.int32), c, c // 2)) + 1e-9 if c > 0 else 1e-9
         scale = max(scale, floor * math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]))
         kept = 0
         for j in range(k):
             if lit[j] > 0.0 and scratch[j] < k_high * scale and scratch[j] > -k_low * scale:
                 kept += 1
+        changed = False
         for j in range(k):
             if kept >= min_obs:
-                w[j] = 1.0 if (lit[j] > 0.0 and scratch[j] < k_high * scale and scratch[j] > -k_low * scale) else 0.0
+                keep = 1.0 if (lit[j] > 0.0 and scratch[j] < k_high * scale and scratch[j] > -k_low * scale) else 0.0
             else:
-                w[j] = lit[j]
+                keep = lit[j]
+            changed |= keep != w[j]
+            w[j] = keep
+        if not changed:   # a fixed point: the later rounds would repeat this one exactly
+            break
         _lambert(o, lt, w, b)
 
 
@@ -519,7 +626,7 @@ def _consensus(o, lt, lit, m, triplets, scratch, packed):
             below += r < best
         if below <= half:     # the median cannot be below the best: no selection needed
             continue
-        med = _kth_smallest(scratch, m, half)
+        med = _quickselect(scratch, m, half)
         if med < best:
             best, b0, b1, b2 = med, x0, x1, x2
     return b0, b1, b2, best, m
@@ -556,7 +663,7 @@ def _solve3(a00, a01, a02, a10, a11, a12, a20, a21, a22, r0, r1, r2):
             (c20 * r0 + c21 * r1 + c22 * r2) / det)
 
 
-def _kth_smallest(a, n, kth):
+def _quickselect(a, n, kth):
     """The kth smallest of a[:n] (a is reordered): Hoare's selection."""
     lo, hi = 0, n - 1
     while lo < hi:
@@ -580,9 +687,39 @@ def _kth_smallest(a, n, kth):
     return a[kth]
 
 
-_PY = {name: globals()[name] for name in ("_fit_shared", "_fit_per_pixel", "_compact", "_fit_one", "_iterate", "_geometry",
-                                         "_tangents", "_coefficient_system", "_step_system", "_rho", "_cost", "_rss_albedo",
-                                         "_hat_trace", "_cholesky_solve", "_select_shared", "_select_per_pixel",
-                                         "_select_one", "_consensus", "_lambert", "_solve3", "_kth_smallest")}
+def _kth_by_bits(a, bits, n, kth):
+    """The kth smallest (0-based) of the non-negative, non-NaN float32 values a[:n] (unchanged);
+    ``bits`` is ``a`` viewed as int32.
+
+    By bisection on the values' bit patterns, which non-negative floats order as integers:
+    each of its at most 31 steps is one branch-free counting pass, which vectorises. For the
+    MAD's median of some 80 values that measured 2.3 -> 1.3 us per pixel against
+    :func:`_quickselect`, whose data-dependent branches mispredict; for the start's 32 float64
+    values (up to 63 steps) the quickselect is faster.
+    """
+    lo, hi = bits[0], bits[0]
+    for j in range(1, n):
+        lo, hi = min(lo, bits[j]), max(hi, bits[j])
+    while lo < hi:
+        mid = lo + (hi - lo) // 2
+        count = 0
+        for j in range(n):
+            count += bits[j] <= mid
+        if count > kth:
+            hi = mid
+        else:
+            lo = mid + 1
+    out = a[0]
+    for j in range(n):
+        if bits[j] == lo:
+            out = a[j]
+    return out
+
+
+_PY = {name: globals()[name] for name in (
+    "_scratch", "_fit_shared", "_fit_per_pixel", "_compact", "_fit_one", "_iterate", "_geometry", "_tangents",
+    "_moments", "_basis_sums", "_spread_moments", "_coefficient_system", "_step_system", "_penalty_value", "_cost",
+    "_rss_albedo", "_hat_trace", "_cholesky_solve", "_cholesky_factor", "_cholesky_substitute", "_select_shared",
+    "_select_per_pixel", "_select_one", "_consensus", "_lambert", "_solve3", "_quickselect", "_kth_by_bits")}
 #: The compiled kernels, built on first use (:func:`kernels`)
 KERNELS = Compiled("photometric-stereo kernels", _build)

@@ -10,6 +10,14 @@ plane (2) and the 9 coefficients c, with the data term sum_k w (obs - R(x, y) s)
 biquadratic with coefficients c (albedo included), so it converges in a few steps and a pixel
 stops when its normal turns by less than ``tol_deg``.
 
+Each step solves the joint (n, c) system but keeps only its turn of the normal: the trial
+takes the best c for the turned normal (c is linear: variable projection), so the iterate stays
+on the floor of the tilt/shape valley, and the damping follows the ratio of the actual to the
+predicted decrease (Nielsen's rule) rather than x10 / /10, which on hard pixels alternated
+accepted and rejected steps. Measured on every DiLiGenT reading pixel (27,654, the fit alone):
+mean steps 5.07 -> 3.55, pixels still turning after 50 steps 2.3 % -> 0, mean error
+10.827 -> 10.816 degrees; ball and cat unchanged (1.84 and 2.7 steps).
+
 The prior is scale-free: with the object's shared shape P (from
 :mod:`pipeline.photometric.shared_shape`) it penalises only the part of c that is not a
 multiple of P, ``shape_prior * scale * |Q c|^2`` with Q the projector orthogonal to P and
@@ -104,27 +112,41 @@ def fit_pixels_numpy(obs, weights, b, lights, h, y, penalty, max_iter=MAX_ITER, 
     pen = scale[:, None, None] * penalty
     c = np.linalg.solve(data + pen, _coefficient_rhs(weights, s, x, y5, obs)[..., None])[..., 0]
     cost = _cost(obs, weights, n, c, lights, h, y5, pen)
-    mu = np.full(len(obs), _MU0)
+    mu, nu = np.full(len(obs), _MU0), np.full(len(obs), 2.0)
     active = np.flatnonzero(np.isfinite(cost))
     cos_tol = np.cos(np.radians(tol_deg))
     for _ in range(max_iter):
         if active.size == 0:
             break
         sub = _rows(active, lights, h, y5)
-        step, t1, t2 = _lm_step(obs[active], weights[active], n[active], c[active], *sub, pen[active], mu[active])
+        step, t1, t2, predicted = _lm_step(obs[active], weights[active], n[active], c[active], *sub, pen[active],
+                                           mu[active])
         n_try = unit(n[active] + step[:, :1] * t1 + step[:, 1:2] * t2)
-        c_try = c[active] + step[:, 2:]
+        # variable projection: c is linear, so the trial takes the best c for the trial normal
+        c_try = _best_coefficients(obs[active], weights[active], n_try, *sub, pen[active])
         cost_try = _cost(obs[active], weights[active], n_try, c_try, *sub, pen[active])
         better = np.isfinite(cost_try) & (cost_try <= cost[active])
         turned = np.sum(n_try * n[active], axis=1)
+        gain = (cost[active] - cost_try) / np.maximum(predicted, 1e-300)
         keep = active[better]
         n[keep], c[keep], cost[keep] = n_try[better], c_try[better], cost_try[better]
-        mu[active] = np.where(better, np.maximum(mu[active] / 10, 1e-12), mu[active] * 10)
+        # Nielsen's damping rule: follow the gain ratio; double the increase after each rejection
+        shrink = np.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+        mu[active] = np.where(better, np.maximum(mu[active] * shrink, 1e-12), mu[active] * nu[active])
+        nu[active] = np.where(better, 2.0, nu[active] * 2.0)
         done = (better & (turned >= cos_tol)) | (mu[active] > _MU_MAX)
         active = active[~done]
     moving = np.zeros(len(obs), bool)
     moving[active] = True
     return _results(obs, weights, n, c, lights, h, y5, pen, moving, dof_below)
+
+
+def _best_coefficients(obs, weights, n, lights, h, y5, pen):
+    """The coefficients (N, 9) that minimise the cost at normals n (a linear solve)."""
+    x, s = cosines(n, lights, h)
+    data = _coefficient_matrix(weights, s, x, y5)
+    with np.errstate(invalid="ignore"):
+        return np.linalg.solve(data + pen, _coefficient_rhs(weights, s, x, y5, obs)[..., None])[..., 0]
 
 
 def _rows(idx, lights, h, y5):
@@ -186,7 +208,8 @@ def _tangents(n):
 
 
 def _lm_step(obs, weights, n, c, lights, h, y5, pen, mu):
-    """The damped Gauss-Newton step (N, 11): tangent rotation (2) and coefficient change (9)."""
+    """The damped Gauss-Newton step (N, 11) (tangent rotation (2), coefficient change (9)),
+    the tangents, and the decrease the damped model predicts (N,)."""
     x, s, r, slope = _surface(n, c, lights, h, y5)
     resid = obs - r * s
     t1, t2 = _tangents(n)
@@ -201,9 +224,10 @@ def _lm_step(obs, weights, n, c, lights, h, y5, pen, mu):
         e[:, i] = np.sum(wg * resid, axis=1)
     a[:, 2:, 2:] = _coefficient_matrix(weights, s, x, y5) + pen
     e[:, 2:] = _coefficient_rhs(weights, s, x, y5, resid) - np.einsum("nij,nj->ni", pen, c)
-    diagonal = np.einsum("nii->ni", a)
-    damped = a + (mu[:, None] * diagonal + 1e-300)[:, :, None] * np.eye(11)
-    return np.linalg.solve(damped, e[..., None])[..., 0], t1, t2
+    damping = mu[:, None] * np.einsum("nii->ni", a) + 1e-300
+    step = np.linalg.solve(a + damping[:, :, None] * np.eye(11), e[..., None])[..., 0]
+    # the decrease the damped quadratic model predicts: step . (e + damping step)
+    return step, t1, t2, np.sum(step * (e + damping * step), axis=1)
 
 
 def _results(obs, weights, n, c, lights, h, y5, pen, moving, dof_below):
