@@ -23,8 +23,8 @@ import numpy as np
 
 from ..jit import ENV_NO_JIT, VECTORISE, Compiled, njit
 
-__all__ = ["jit_enabled", "kernels", "fit_pixels_jit", "select_robust_jit", "compile_seconds", "ENV_NO_JIT",
-           "KERNELS"]
+__all__ = ["jit_enabled", "kernels", "fit_pixels_jit", "select_robust_jit", "shape_terms_jit", "compile_seconds",
+           "ENV_NO_JIT", "KERNELS"]
 
 _MU0, _MU_MAX = 1e-6, 1e8   # as pipeline.photometric.pixel_fit
 _K_IN, _MIN_DET, _SCORED = 2.5, 1e-3, 32  # as pipeline.photometric.selection.consensus_weights
@@ -68,6 +68,9 @@ def _warm_up(compiled):
                        1e-10 * np.eye(9), 2, 0.01, compiled=compiled)
         select_robust_jit(obs, lt, np.ones((2, 4)), 2.5, 2.5, 1, 3, np.array([[0, 1, 2], [1, 2, 3]]), 0.02,
                           compiled)
+        for blocks in (False, True):
+            shape_terms_jit(obs, np.ones((2, 4)), np.array([[0.0, 0.0, 1.0]] * 2), np.eye(3), lt, ht,
+                            np.sum(lt * ht, axis=-1), blocks, compiled)
 
 
 # ----------------------------------------------------------------------------- Python entry
@@ -84,8 +87,7 @@ def fit_pixels_jit(obs, weights, b, lights, h, y, penalty, max_iter, tol_deg, do
         return None
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731 - one fixed signature
     n = len(b)
-    y = np.asarray(y, float)
-    ypow = np.stack([np.ones_like(y), y, y * y, y * y * y, y * y * y * y], axis=-1)
+    ypow = _y_powers(y)
     b_out, c_out, rss, moving, dof = np.empty((n, 3)), np.empty((n, 9)), np.empty(n), np.empty(n, np.uint8), \
         np.empty(n)
     kernel = compiled["_fit_per_pixel" if np.ndim(lights) == 3 else "_fit_shared"]
@@ -107,6 +109,37 @@ def select_robust_jit(obs, lights, base, k_high, k_low, iterations, min_obs, tri
     kernel(f64(obs), f64(lights), f64(base), float(k_high), float(k_low), int(iterations), int(min_obs),
            np.ascontiguousarray(triplets, dtype=np.int64), float(scale_floor), weights, b)
     return weights, b
+
+
+def shape_terms_jit(obs, weights, b, coeffs, lights, h, y, blocks=True, compiled=None):
+    """The per-pixel terms of :func:`pipeline.photometric.shared_shape.fit_shared_shape`'s
+    Levenberg-Marquardt step at (b (N, 3), coeffs (3, 3)), compiled; None when unavailable.
+
+    ``y`` (K,) or (N, K) is l . h. Returns a dict of per-pixel arrays: ``cost``
+    (N,) the weighted residual sums of squares and, with ``blocks``, ``u`` (N, 3, 3) = J_b' W J_b,
+    ``cross`` (N, 3, 9) = J_b' W J_c, ``moments`` (N, 25) (the 9 x 9 J_c' W J_c from them),
+    ``e_b`` (N, 3), ``e_c`` (N, 9) and ``basis`` (N, 9) = sum_k w x^a y^c.
+    """
+    compiled = compiled or kernels()
+    if compiled is None:
+        return None
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731 - one fixed signature
+    n = len(b)
+    size = n if blocks else 0
+    ypow = _y_powers(y)
+    out = {"cost": np.empty(n), "u": np.empty((size, 3, 3)), "cross": np.empty((size, 3, 9)),
+           "moments": np.empty((size, 25)), "e_b": np.empty((size, 3)), "e_c": np.empty((size, 9)),
+           "basis": np.empty((size, 9))}
+    kernel = compiled["_shape_per_pixel" if np.ndim(lights) == 3 else "_shape_shared"]
+    kernel(f64(obs), f64(weights), f64(b), f64(coeffs).reshape(9), f64(lights), f64(h), f64(ypow), bool(blocks),
+           out["cost"], out["u"], out["cross"], out["moments"], out["e_b"], out["e_c"], out["basis"])
+    return out if blocks else {"cost": out["cost"]}
+
+
+def _y_powers(y):
+    """y^0..y^4 (..., 5) of y (K,) or (N, K)."""
+    y = np.asarray(y, float)
+    return np.stack([np.ones_like(y), y, y * y, y * y * y, y * y * y * y], axis=-1)
 
 
 def _unit(v):
@@ -520,6 +553,81 @@ def _cholesky_substitute(a, rhs, out, size):
         out[i] = v / a[i, i]
 
 
+# ----------------------------------------------------------------------------- shared-shape kernels
+def _shape_shared(obs, weights, b, coeffs, lights, h, ypow, blocks, cost, u, cross, moments, e_b, e_c, basis):
+    """:func:`_shape_one` for every pixel under shared lights (K, 3)."""
+    n_pix, k = obs.shape
+    soa, work = np.empty((12, k)), np.empty((8, k))
+    for p in range(n_pix):
+        m = _compact(obs[p], weights[p], lights, h, ypow, soa)
+        _shape_one(soa, m, b[p], coeffs, blocks, work, cost, u, cross, moments, e_b, e_c, basis, p)
+
+
+def _shape_per_pixel(obs, weights, b, coeffs, lights, h, ypow, blocks, cost, u, cross, moments, e_b, e_c, basis):
+    """:func:`_shape_one` for every pixel under per-pixel lights (N, K, 3)."""
+    n_pix, k = obs.shape
+    soa, work = np.empty((12, k)), np.empty((8, k))
+    for p in range(n_pix):
+        m = _compact(obs[p], weights[p], lights[p], h[p], ypow[p], soa)
+        _shape_one(soa, m, b[p], coeffs, blocks, work, cost, u, cross, moments, e_b, e_c, basis, p)
+
+
+def _shape_one(soa, m, b, coeffs, blocks, work, cost, u, cross, moments, e_b, e_c, basis, p):
+    """One pixel's terms (see :func:`shape_terms_jit`): model albedo rho(x, y) s, b = albedo n,
+    J_b = rho l + s rho' (h - x n), J_c = albedo s x^a y^c."""
+    albedo = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+    n0, n1, n2 = b[0] / max(albedo, 1e-300), b[1] / max(albedo, 1e-300), b[2] / max(albedo, 1e-300)
+    c0, c1, c2, c3, c4, c5, c6, c7, c8 = (coeffs[0], coeffs[1], coeffs[2], coeffs[3], coeffs[4], coeffs[5],
+                                          coeffs[6], coeffs[7], coeffs[8])
+    xs, t, v0, v1, v2, vr, wv = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
+    u00 = u01 = u02 = u11 = u12 = u22 = g0 = g1 = g2 = total = 0.0
+    for j in range(m):
+        x = n0 * soa[5, j] + n1 * soa[6, j] + n2 * soa[7, j]
+        s = n0 * soa[2, j] + n1 * soa[3, j] + n2 * soa[4, j]
+        y1, y2, wj = soa[8, j], soa[9, j], soa[1, j]
+        q1 = c3 + c4 * y1 + c5 * y2
+        q2 = c6 + c7 * y1 + c8 * y2
+        rho = (c0 + c1 * y1 + c2 * y2) + x * (q1 + x * q2)
+        r = soa[0, j] - rho * s * albedo
+        total += wj * r * r
+        d = s * (q1 + 2.0 * x * q2)
+        j0 = rho * soa[2, j] + d * (soa[5, j] - x * n0)
+        j1 = rho * soa[3, j] + d * (soa[6, j] - x * n1)
+        j2 = rho * soa[4, j] + d * (soa[7, j] - x * n2)
+        w0, w1, w2 = wj * j0, wj * j1, wj * j2
+        u00 += w0 * j0
+        u01 += w0 * j1
+        u02 += w0 * j2
+        u11 += w1 * j1
+        u12 += w1 * j2
+        u22 += w2 * j2
+        g0 += w0 * r
+        g1 += w1 * r
+        g2 += w2 * r
+        xs[j], t[j], wv[j] = x, wj * s * s, wj
+        v0[j], v1[j], v2[j], vr[j] = w0 * s, w1 * s, w2 * s, wj * r * s
+    cost[p] = total
+    if not blocks:
+        return
+    u[p, 0, 0], u[p, 0, 1], u[p, 0, 2] = u00, u01, u02
+    u[p, 1, 0], u[p, 1, 1], u[p, 1, 2] = u01, u11, u12
+    u[p, 2, 0], u[p, 2, 1], u[p, 2, 2] = u02, u12, u22
+    e_b[p, 0], e_b[p, 1], e_b[p, 2] = g0, g1, g2
+    _moments(t, xs, soa, m, moments[p])
+    _basis_sums(v0, xs, soa, m, cross[p, 0])
+    _basis_sums(v1, xs, soa, m, cross[p, 1])
+    _basis_sums(v2, xs, soa, m, cross[p, 2])
+    _basis_sums(vr, xs, soa, m, e_c[p])
+    _basis_sums(wv, xs, soa, m, basis[p])
+    for i in range(25):
+        moments[p, i] *= albedo * albedo
+    for i in range(9):
+        cross[p, 0, i] *= albedo
+        cross[p, 1, i] *= albedo
+        cross[p, 2, i] *= albedo
+        e_c[p, i] *= albedo
+
+
 # ----------------------------------------------------------------------------- selection kernels
 def _select_shared(obs, lights, base, k_high, k_low, iterations, min_obs, triplets, floor, w_out, b_out):
     """:func:`_select_one` for every pixel under shared lights (K, 3)."""
@@ -720,6 +828,7 @@ _PY = {name: globals()[name] for name in (
     "_scratch", "_fit_shared", "_fit_per_pixel", "_compact", "_fit_one", "_iterate", "_geometry", "_tangents",
     "_moments", "_basis_sums", "_spread_moments", "_coefficient_system", "_step_system", "_penalty_value", "_cost",
     "_rss_albedo", "_hat_trace", "_cholesky_solve", "_cholesky_factor", "_cholesky_substitute", "_select_shared",
-    "_select_per_pixel", "_select_one", "_consensus", "_lambert", "_solve3", "_quickselect", "_kth_by_bits")}
+    "_select_per_pixel", "_select_one", "_consensus", "_lambert", "_solve3", "_quickselect", "_kth_by_bits",
+    "_shape_shared", "_shape_per_pixel", "_shape_one")}
 #: The compiled kernels, built on first use (:func:`kernels`)
 KERNELS = Compiled("photometric-stereo kernels", _build)

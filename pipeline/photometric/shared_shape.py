@@ -11,6 +11,7 @@ pulls each pixel's parameters toward albedo x this shape.
 import numpy as np
 
 from .model import X_POWER, Y_POWER, cosines, normal_system, powers, shape_and_slope
+from .kernels import jit_enabled, shape_terms_jit
 from .pixel_fit import fit_pixels
 
 __all__ = ["fit_shared_shape", "single_material_check", "ONE_MATERIAL_RATIO", "MIN_CHECK_OBS"]
@@ -21,29 +22,76 @@ def fit_shared_shape(obs, weights, b, lights, h, y, iterations=15):
 
     Levenberg-Marquardt over the 9 shared and 3N per-pixel unknowns; the per-pixel 3 x 3 blocks
     are eliminated (Schur complement), so each step solves one 9 x 9 system. The shape is
-    normalised to mean 1 over the used observations (albedo carries the scale).
+    normalised to mean 1 over the used observations (albedo carries the scale). The per-pixel
+    terms are compiled (:func:`pipeline.photometric.kernels.shape_terms_jit`) unless the kernels
+    are unavailable (then numpy, :func:`_numpy_terms`, the reference).
     """
-    y3 = powers(np.asarray(y, float), 2)
-    lights_b = lights if lights.ndim == 3 else np.broadcast_to(lights, (len(b),) + lights.shape)
-    half_b = h if h.ndim == 3 else np.broadcast_to(h, (len(b),) + h.shape)
+    terms = _terms_function(obs, weights, lights, h, y)
     coeffs = np.zeros((3, 3))
     coeffs[0, 0] = 1.0
-    state = _shared_state(obs, weights, b, coeffs, lights, h, y3)
+    cost = terms(b, coeffs, False)
+    blocks = None
     damping = 1e-3
     for _ in range(iterations):
-        step = _schur_step(obs, weights, b, coeffs, state, lights_b, half_b, y3, damping)
+        blocks = blocks or terms(b, coeffs, True)   # a rejected step leaves (b, coeffs), so its blocks
+        step = _schur_step(b, coeffs, blocks, damping)
         if step is None:
             break
         b_new, c_new = step
-        trial = _shared_state(obs, weights, b_new, c_new, lights, h, y3)
-        if trial[0] < state[0]:
-            b, coeffs, state = b_new, c_new, trial
+        trial = terms(b_new, c_new, False)
+        if trial < cost:
+            b, coeffs, cost, blocks = b_new, c_new, trial, None
             damping *= 0.3
         else:
             damping *= 10.0
             if damping > 1e6:
                 break
     return coeffs, b
+
+
+def _terms_function(obs, weights, lights, h, y):
+    """``terms(b, coeffs, blocks)``: the data cost (float) at (b, coeffs), or with ``blocks`` the
+    summed LM blocks (dict: cost, u (N, 3, 3), cross (N, 3, 9), v (9, 9), e_b (N, 3), e_c (9,),
+    basis (9,) = sum w x^a y^c over every pixel)."""
+    weight_sum = max(float(np.sum(weights)), 1e-300)
+
+    def compiled(b, coeffs, blocks):
+        out = shape_terms_jit(obs, weights, b, coeffs, lights, h, y, blocks)
+        if out is None:
+            return None
+        cost = float(np.sum(out["cost"]))
+        if not blocks:
+            return cost
+        moments = out["moments"].sum(axis=0).reshape(5, 5)
+        v = moments[X_POWER[:, None] + X_POWER[None, :], Y_POWER[:, None] + Y_POWER[None, :]]
+        return {"cost": cost, "u": out["u"], "cross": out["cross"], "v": v, "e_b": out["e_b"],
+                "e_c": out["e_c"].sum(axis=0), "basis": out["basis"].sum(axis=0), "weight_sum": weight_sum}
+
+    def numpy(b, coeffs, blocks):
+        return _numpy_terms(obs, weights, b, coeffs, lights, h, y, blocks, weight_sum)
+
+    def terms(b, coeffs, blocks):
+        got = compiled(b, coeffs, blocks) if jit_enabled() else None
+        return numpy(b, coeffs, blocks) if got is None else got
+
+    return terms
+
+
+def _numpy_terms(obs, weights, b, coeffs, lights, h, y, blocks, weight_sum):
+    """:func:`_terms_function`'s terms in numpy."""
+    y3 = powers(np.asarray(y, float), 2)
+    state = _shared_state(obs, weights, b, coeffs, lights, h, y3)
+    if not blocks:
+        return state[0]
+    lights_b = lights if lights.ndim == 3 else np.broadcast_to(lights, (len(b),) + lights.shape)
+    half_b = h if h.ndim == 3 else np.broadcast_to(h, (len(b),) + h.shape)
+    u, cross, v, e_b, e_c = _schur_blocks(weights, state, lights_b, half_b, y3)
+    x = state[3]
+    ypow = np.broadcast_to(y3, x.shape + (3,))
+    basis = np.einsum("nk,nka->a", weights, (powers(x, 2)[..., X_POWER] * ypow[..., Y_POWER]))
+    return {"cost": state[0], "u": u, "cross": cross, "v": v, "e_b": e_b, "e_c": e_c, "basis": basis,
+            "weight_sum": weight_sum}
+
 
 def _shared_state(obs, weights, b, coeffs, lights, h, y3):
     albedo = np.linalg.norm(b, axis=1, keepdims=True)
@@ -53,10 +101,11 @@ def _shared_state(obs, weights, b, coeffs, lights, h, y3):
     resid = obs - rho * cos * albedo
     return float(np.sum(weights * resid**2)), albedo, n, x, cos, rho, slope, resid
 
-def _schur_step(obs, weights, b, coeffs, state, lights_b, half_b, y3, damping):
-    blocks = _schur_blocks(weights, state, lights_b, half_b, y3)
-    u, cross, v, e_b, e_c = blocks
-    u += (damping * np.trace(u, axis1=1, axis2=2) / 3 + 1e-12)[:, None, None] * np.eye(3)
+
+def _schur_step(b, coeffs, blocks, damping):
+    """The damped step from the summed blocks: (b_new (N, 3), coeffs_new (3, 3)), or None."""
+    u, cross, v, e_b, e_c = (blocks[key] for key in ("u", "cross", "v", "e_b", "e_c"))
+    u = u + (damping * np.trace(u, axis1=1, axis2=2) / 3 + 1e-12)[:, None, None] * np.eye(3)
     u_inv = np.linalg.inv(u)
     u_cross = u_inv @ cross
     u_e = np.einsum("nij,nj->ni", u_inv, e_b)
@@ -69,9 +118,9 @@ def _schur_step(obs, weights, b, coeffs, state, lights_b, half_b, y3, damping):
         return None
     b_new = b + u_e - u_cross @ d_c
     c_new = coeffs + d_c.reshape(3, 3)
-    # Albedo and shape share one scale: keep the mean shape at 1 over the used observations.
-    x = state[3]
-    mean = np.sum(weights * shape_and_slope(c_new, x, y3)[0]) / max(np.sum(weights), 1e-300)
+    # Albedo and shape share one scale: keep the mean shape at 1 over the used observations
+    # (sum_k w rho = c . sum_k w x^a y^c at the current normals).
+    mean = float(c_new.reshape(9) @ blocks["basis"]) / blocks["weight_sum"]
     if not np.isfinite(mean) or abs(mean) < 1e-12:
         return None
     return b_new * mean, c_new / mean
@@ -165,8 +214,7 @@ def single_material_check(obs, weights, b, b_shared, shape, lights, h, y):
         ``tested`` False when the pixels have fewer than :data:`MIN_CHECK_OBS` observations.
     """
     y_arr = np.asarray(y, float)
-    y3 = powers(y_arr, 2)
-    shared = _shared_state(obs, weights, b_shared, shape, lights, h, y3)[0]
+    shared = _terms_function(obs, weights, lights, h, y_arr)(b_shared, shape, False)
     # free shapes fitted with their normals (at the initial normals alone they leave more
     # residual: on the two-material object of tests/pipeline/photometric/test_shape_check.py
     # the ratio read 3.47 there, 6.24 fitted)
