@@ -157,18 +157,18 @@ def _scratch(k):
     over them vectorise: obs, weight, l (3 rows), h (3 rows), y^1..y^4. ``work`` (8, K) holds
     per-observation terms: x, s at the current and the trial normal, then four weighted terms.
     """
-    return (np.empty((12, k)), np.empty((8, k)), np.empty((3, 9, 9)), np.empty((11, 11)), np.empty((10, 11)),
-            np.empty(25), np.empty((2, 9)))
+    return np.empty((12, k)), np.empty((8, k)), np.empty((3, 9, 9)), np.empty((14, 11)), np.empty(25), \
+        np.empty((2, 9))
 
 
 def _fit_shared(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol, dof_below, b_out, c_out, rss_out,
                 moving_out, dof_out):
     """Every pixel of obs (N, K) under shared lights (K, 3): compact its used observations, fit."""
     n_pix, k = obs.shape
-    soa, work, mats, a11, vecs, mom, cols = _scratch(k)
+    soa, work, mats, vecs, mom, cols = _scratch(k)
     for p in range(n_pix):
         m = _compact(obs[p], weights[p], lights, h, ypow, soa)
-        _fit_one(soa, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, mom, cols, b_out[p],
+        _fit_one(soa, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, vecs, mom, cols, b_out[p],
                  c_out[p], rss_out, moving_out, dof_out, p)
 
 
@@ -176,10 +176,10 @@ def _fit_per_pixel(obs, weights, b0, lights, h, ypow, penalty, max_iter, cos_tol
                    rss_out, moving_out, dof_out):
     """:func:`_fit_shared` for per-pixel lights (N, K, 3), half vectors and y powers."""
     n_pix, k = obs.shape
-    soa, work, mats, a11, vecs, mom, cols = _scratch(k)
+    soa, work, mats, vecs, mom, cols = _scratch(k)
     for p in range(n_pix):
         m = _compact(obs[p], weights[p], lights[p], h[p], ypow[p], soa)
-        _fit_one(soa, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, mom, cols, b_out[p],
+        _fit_one(soa, m, b0[p], penalty, max_iter, cos_tol, dof_below, work, mats, vecs, mom, cols, b_out[p],
                  c_out[p], rss_out, moving_out, dof_out, p)
 
 
@@ -197,7 +197,7 @@ def _compact(obs, weights, lights, h, ypow, soa):
     return m
 
 
-def _fit_one(soa, m, b0, penalty, max_iter, cos_tol, dof_below, work, mats, a11, vecs, mom, cols, b_out, c_out,
+def _fit_one(soa, m, b0, penalty, max_iter, cos_tol, dof_below, work, mats, vecs, mom, cols, b_out, c_out,
              rss_out, moving_out, dof_out, p):
     """One pixel: the linear start for c, then Levenberg-Marquardt steps; writes its results."""
     norm = math.sqrt(b0[0] * b0[0] + b0[1] * b0[1] + b0[2] * b0[2])
@@ -221,7 +221,7 @@ def _fit_one(soa, m, b0, penalty, max_iter, cos_tol, dof_below, work, mats, a11,
     if not math.isfinite(cost):
         moving = 0
     else:
-        moving = _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, a11, vecs, a9, rhs)
+        moving = _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, a9, data, vecs)
     rss, albedo = _rss_albedo(soa, xs, cs, m, c)   # xs, cs: the geometry of the final n
     if m < dof_below:
         _coefficient_system(soa, xs, cs, m, work, mom, data, rhs)
@@ -238,31 +238,38 @@ def _fit_one(soa, m, b0, penalty, max_iter, cos_tol, dof_below, work, mats, a11,
     moving_out[p] = moving
 
 
-def _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, a, vecs, a9, rhs):
-    """Levenberg-Marquardt steps on (n, c) in place; returns 1 while the normal still turns.
+def _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, factor, spare, vecs):
+    """Levenberg-Marquardt steps on the normal, c eliminated (variable projection); in place.
 
-    The step comes from the joint (n, c) system; the trial takes the best c for the trial normal
-    (c is linear: variable projection), and the damping follows the gain ratio (Nielsen's rule).
+    c is linear: at every iterate it is the best c for n, so the step is the damped Gauss-Newton
+    step of the reduced problem in the normal's two tangent angles (the joint system's Schur
+    complement on the normal), the trial takes the best c for the trial normal, and the damping
+    follows the gain ratio (Nielsen's rule). ``factor`` holds the Cholesky factor of
+    data + pen at n on entry (``spare`` (9, 9) is scratch); work[0], work[1] hold the geometry
+    (n . h, n . l) of the current n on entry and exit. Returns 1 while the normal still turns.
     See :func:`pipeline.photometric.pixel_fit.fit_pixels_numpy`, which does the same in numpy.
-    On entry and exit work[0], work[1] hold the geometry (n . h, n . l) of the current n.
     """
-    e, step = vecs[3], vecs[4]
-    n_try, c_try, t1, t2 = vecs[5, :3], vecs[6, :9], vecs[7, :3], vecs[8, :3]
+    rhs, n_try, c_try, t1, t2 = vecs[2, :9], vecs[5, :3], vecs[6, :9], vecs[7, :3], vecs[8, :3]
+    row1, row2, z1, z2 = vecs[10, :9], vecs[11, :9], vecs[12, :9], vecs[13, :9]
     mu = _MU0
     nu = 2.0
-    diag = vecs[9]
     xs, cs, xt, ct = work[0], work[1], work[2], work[3]
     for it in range(max_iter):
         _tangents(n, t1, t2)
-        _step_system(soa, xs, cs, m, c, t1, t2, pen, work, mom, a, e)
-        for i in range(11):
-            diag[i] = mu * a[i, i] + 1e-300
-            a[i, i] += diag[i]
-        _cholesky_solve(a, e, step, 11)
-        predicted = 0.0
-        for i in range(11):
-            predicted += step[i] * (e[i] + diag[i] * step[i])
-        s0, s1 = step[0], step[1]
+        a00, a01, a11, g0, g1 = _normal_terms(soa, xs, cs, m, c, t1, t2, work, row1, row2)
+        # the Schur complement on the normal: S = A_nn - A_nc (data + pen)^-1 A_cn (the gradient
+        # in c is zero at the best c)
+        _cholesky_substitute(factor, row1, z1, 9)
+        _cholesky_substitute(factor, row2, z2, 9)
+        for i in range(9):
+            a00 -= row1[i] * z1[i]
+            a01 -= row1[i] * z2[i]
+            a11 -= row2[i] * z2[i]
+        d0, d1 = mu * a00 + 1e-300, mu * a11 + 1e-300
+        det = (a00 + d0) * (a11 + d1) - a01 * a01
+        s0 = ((a11 + d1) * g0 - a01 * g1) / det
+        s1 = ((a00 + d0) * g1 - a01 * g0) / det
+        predicted = s0 * (g0 + d0 * s0) + s1 * (g1 + d1 * s1)
         norm = 0.0
         for i in range(3):
             n_try[i] = n[i] + s0 * t1[i] + s1 * t2[i]
@@ -271,13 +278,14 @@ def _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, a, vecs, a9,
         for i in range(3):
             n_try[i] /= norm
         _geometry(n_try, soa, xt, ct, m)
-        # variable projection: c is linear, so the trial takes the best c for n_try
-        _coefficient_system(soa, xt, ct, m, work, mom, a9, rhs)
+        _coefficient_system(soa, xt, ct, m, work, mom, spare, rhs)
         for i in range(9):
             for q in range(9):
-                a9[i, q] += pen[i, q]
-        _cholesky_solve(a9, rhs, c_try, 9)
-        cost_try = _cost(soa, xt, ct, m, c_try, pen)
+                spare[i, q] += pen[i, q]
+        cost_try = np.nan
+        if det > 0.0 and _cholesky_factor(spare, 9):
+            _cholesky_substitute(spare, rhs, c_try, 9)
+            cost_try = _cost(soa, xt, ct, m, c_try, pen)
         if math.isfinite(cost_try) and cost_try <= cost:
             turned = n[0] * n_try[0] + n[1] * n_try[1] + n[2] * n_try[2]
             for i in range(3):
@@ -286,6 +294,7 @@ def _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, a, vecs, a9,
                 c[i] = c_try[i]
             for j in range(m):
                 xs[j], cs[j] = xt[j], ct[j]
+            factor, spare = spare, factor
             gain = (cost - cost_try) / max(predicted, 1e-300)
             cost = cost_try
             mu = max(mu * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12)
@@ -406,9 +415,10 @@ def _coefficient_system(soa, xs, cs, m, work, mom, data, rhs):
     _basis_sums(u, xs, soa, m, rhs)
 
 
-def _step_system(soa, xs, cs, m, c, t1, t2, pen, work, mom, a, e):
-    """The Gauss-Newton normal equations a (11, 11), e (11,) at (n, c), the penalty included."""
-    t, u1, u2, ur = work[4], work[5], work[6], work[7]
+def _normal_terms(soa, xs, cs, m, c, t1, t2, work, row1, row2):
+    """The Gauss-Newton terms of the normal's tangent angles at (n, c): returns A_nn (a00, a01,
+    a11) and the gradient (g0, g1); row1, row2 (9,) := A_nc, their coupling to c."""
+    u1, u2 = work[5], work[6]
     c0, c1, c2, c3, c4, c5, c6, c7, c8 = c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]
     a00 = a01 = a11 = e0 = e1 = 0.0
     for j in range(m):
@@ -431,28 +441,11 @@ def _step_system(soa, xs, cs, m, c, t1, t2, pen, work, mom, a, e):
         a11 += wg2 * g2
         e0 += wg1 * res
         e1 += wg2 * res
-        t[j] = wj * s * s
         u1[j] = wg1 * s
         u2[j] = wg2 * s
-        ur[j] = wj * res * s
-    for i in range(11):
-        for q in range(11):
-            a[i, q] = 0.0
-    a[0, 0], a[0, 1], a[1, 0], a[1, 1] = a00, a01, a01, a11
-    e[0], e[1] = e0, e1
-    _moments(t, xs, soa, m, mom)
-    _spread_moments(mom, a, 2)
-    _basis_sums(u1, xs, soa, m, a[0, 2:])
-    _basis_sums(u2, xs, soa, m, a[1, 2:])
-    _basis_sums(ur, xs, soa, m, e[2:])
-    for r in range(9):
-        a[2 + r, 0] = a[0, 2 + r]
-        a[2 + r, 1] = a[1, 2 + r]
-        penalty_c = 0.0
-        for q in range(9):
-            a[2 + r, 2 + q] += pen[r, q]
-            penalty_c += pen[r, q] * c[q]
-        e[2 + r] -= penalty_c
+    _basis_sums(u1, xs, soa, m, row1)
+    _basis_sums(u2, xs, soa, m, row2)
+    return a00, a01, a11, e0, e1
 
 
 def _penalty_value(c, pen):
@@ -826,7 +819,7 @@ def _kth_by_bits(a, bits, n, kth):
 
 _PY = {name: globals()[name] for name in (
     "_scratch", "_fit_shared", "_fit_per_pixel", "_compact", "_fit_one", "_iterate", "_geometry", "_tangents",
-    "_moments", "_basis_sums", "_spread_moments", "_coefficient_system", "_step_system", "_penalty_value", "_cost",
+    "_moments", "_basis_sums", "_spread_moments", "_coefficient_system", "_normal_terms", "_penalty_value", "_cost",
     "_rss_albedo", "_hat_trace", "_cholesky_solve", "_cholesky_factor", "_cholesky_substitute", "_select_shared",
     "_select_per_pixel", "_select_one", "_consensus", "_lambert", "_solve3", "_quickselect", "_kth_by_bits",
     "_shape_shared", "_shape_per_pixel", "_shape_one")}
