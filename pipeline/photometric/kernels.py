@@ -626,21 +626,43 @@ def _select_shared(obs, lights, base, k_high, k_low, iterations, min_obs, triple
     """:func:`_select_one` for every pixel under shared lights (K, 3)."""
     n_pix, k = obs.shape
     scratch, sort32, packed = np.empty(k), np.empty(k, np.float32), np.empty((4, k))
+    solvers = np.empty((len(triplets), 10))
+    _triplet_solvers(lights, triplets, solvers)   # the same for every pixel
     for p in range(n_pix):
-        _select_one(obs[p], lights, base[p], k_high, k_low, iterations, min_obs, triplets, floor, w_out[p], b_out[p],
-                    scratch, sort32, packed)
+        _select_one(obs[p], lights, base[p], k_high, k_low, iterations, min_obs, triplets, solvers, floor, w_out[p],
+                    b_out[p], scratch, sort32, packed)
 
 
 def _select_per_pixel(obs, lights, base, k_high, k_low, iterations, min_obs, triplets, floor, w_out, b_out):
     """:func:`_select_one` for every pixel under per-pixel lights (N, K, 3)."""
     n_pix, k = obs.shape
     scratch, sort32, packed = np.empty(k), np.empty(k, np.float32), np.empty((4, k))
+    solvers = np.empty((len(triplets), 10))
     for p in range(n_pix):
-        _select_one(obs[p], lights[p], base[p], k_high, k_low, iterations, min_obs, triplets, floor, w_out[p],
+        _triplet_solvers(lights[p], triplets, solvers)
+        _select_one(obs[p], lights[p], base[p], k_high, k_low, iterations, min_obs, triplets, solvers, floor, w_out[p],
                     b_out[p], scratch, sort32, packed)
 
 
-def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, floor, w, b, scratch, sort32, packed):
+def _triplet_solvers(lt, triplets, solvers):
+    """solvers (T, 10): each triplet's 3 x 3 light matrix as its 9 cofactors and determinant,
+    so that b = cofactors . obs / det (the arithmetic of :func:`_solve3`)."""
+    for t in range(len(triplets)):
+        i0, i1, i2 = triplets[t, 0], triplets[t, 1], triplets[t, 2]
+        a00, a01, a02 = lt[i0, 0], lt[i0, 1], lt[i0, 2]
+        a10, a11, a12 = lt[i1, 0], lt[i1, 1], lt[i1, 2]
+        a20, a21, a22 = lt[i2, 0], lt[i2, 1], lt[i2, 2]
+        c00, c01, c02 = a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11
+        c10, c11, c12 = a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12
+        c20, c21, c22 = a10 * a21 - a11 * a20, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10
+        solvers[t, 0], solvers[t, 1], solvers[t, 2] = c00, c01, c02
+        solvers[t, 3], solvers[t, 4], solvers[t, 5] = c10, c11, c12
+        solvers[t, 6], solvers[t, 7], solvers[t, 8] = c20, c21, c22
+        solvers[t, 9] = a00 * c00 + a01 * c10 + a02 * c20
+
+
+def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, solvers, floor, w, b, scratch, sort32,
+                packed):
     """One pixel's consensus start and MAD rounds (see pipeline.photometric.selection)."""
     k = len(o)
     m = 0
@@ -648,7 +670,7 @@ def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, floor,
         w[j] = lit[j]
         if lit[j] > 0.0:
             m += 1
-    b0, b1, b2, best, scored = _consensus(o, lt, lit, m, triplets, scratch, packed)
+    b0, b1, b2, best, scored = _consensus(o, lt, lit, m, triplets, solvers, scratch, packed)
     if math.isfinite(best):
         scale = max(1.4826 * (1.0 + 5.0 / max(scored - 3, 1)) * math.sqrt(best),
                     floor * math.sqrt(b0 * b0 + b1 * b1 + b2 * b2))
@@ -687,7 +709,7 @@ def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, floor,
         _lambert(o, lt, w, b)
 
 
-def _consensus(o, lt, lit, m, triplets, scratch, packed):
+def _consensus(o, lt, lit, m, triplets, solvers, scratch, packed):
     """The least-median-of-squares triplet: its b and median squared residual (inf if none)."""
     k = len(o)
     # the lit observations, contiguous: every triplet's residuals are a branch-free pass
@@ -710,13 +732,13 @@ def _consensus(o, lt, lit, m, triplets, scratch, packed):
         i0, i1, i2 = triplets[t, 0], triplets[t, 1], triplets[t, 2]
         if not (lit[i0] > 0.0 and lit[i1] > 0.0 and lit[i2] > 0.0):
             continue
-        det = (lt[i0, 0] * (lt[i1, 1] * lt[i2, 2] - lt[i1, 2] * lt[i2, 1])
-               - lt[i0, 1] * (lt[i1, 0] * lt[i2, 2] - lt[i1, 2] * lt[i2, 0])
-               + lt[i0, 2] * (lt[i1, 0] * lt[i2, 1] - lt[i1, 1] * lt[i2, 0]))
+        det = solvers[t, 9]
         if not abs(det) > _MIN_DET:
             continue
-        x0, x1, x2 = _solve3(lt[i0, 0], lt[i0, 1], lt[i0, 2], lt[i1, 0], lt[i1, 1], lt[i1, 2],
-                             lt[i2, 0], lt[i2, 1], lt[i2, 2], o[i0], o[i1], o[i2])
+        r0, r1, r2 = o[i0], o[i1], o[i2]
+        x0 = (solvers[t, 0] * r0 + solvers[t, 1] * r1 + solvers[t, 2] * r2) / det
+        x1 = (solvers[t, 3] * r0 + solvers[t, 4] * r1 + solvers[t, 5] * r2) / det
+        x2 = (solvers[t, 6] * r0 + solvers[t, 7] * r1 + solvers[t, 8] * r2) / det
         if not (math.isfinite(x0) and math.isfinite(x1) and math.isfinite(x2) and x2 > 0.0):
             continue
         below = 0
@@ -821,7 +843,7 @@ _PY = {name: globals()[name] for name in (
     "_scratch", "_fit_shared", "_fit_per_pixel", "_compact", "_fit_one", "_iterate", "_geometry", "_tangents",
     "_moments", "_basis_sums", "_spread_moments", "_coefficient_system", "_normal_terms", "_penalty_value", "_cost",
     "_rss_albedo", "_hat_trace", "_cholesky_solve", "_cholesky_factor", "_cholesky_substitute", "_select_shared",
-    "_select_per_pixel", "_select_one", "_consensus", "_lambert", "_solve3", "_quickselect", "_kth_by_bits",
+    "_select_per_pixel", "_triplet_solvers", "_select_one", "_consensus", "_lambert", "_solve3", "_quickselect", "_kth_by_bits",
     "_shape_shared", "_shape_per_pixel", "_shape_one")}
 #: The compiled kernels, built on first use (:func:`kernels`)
 KERNELS = Compiled("photometric-stereo kernels", _build)
