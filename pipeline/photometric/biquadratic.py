@@ -102,7 +102,7 @@ class Biquadratic:
         h, y = half_vectors(lights)
         coeffs = np.zeros((len(obs), 3, 3))
         coeffs[:, 0, 0] = 1.0
-        rss = np.sum(weights * (obs - shading(b, lights)) ** 2, axis=1)
+        rss = np.full(len(obs), np.nan)
         status[status == STATUS["ok"]] = STATUS["lambert_fallback"]
         models = [(LAMBERT_SHAPE if prior is None else prior, shape_prior or 0.0, STATUS["ok"])]
         if prior is not None:
@@ -111,9 +111,10 @@ class Biquadratic:
         for shape, strength, code in models:
             if todo.size == 0:
                 break
-            sub = (lights, h, y) if lights.ndim == 2 else (lights[todo], h[todo], y[todo])
+            rows = (lambda a: a) if todo.size == len(obs) else (lambda a: a[todo])   # every pixel: no copies
+            sub = (lights, h, y) if lights.ndim == 2 else (rows(lights), rows(h), rows(y))
             # with 11 + spare_obs observations or more every model is determined: no dof needed
-            b_fit, c_fit, rss_fit, moving, dof = fit_pixels(obs[todo], weights[todo], b[todo], *sub, prior=shape,
+            b_fit, c_fit, rss_fit, moving, dof = fit_pixels(rows(obs), rows(weights), rows(b), *sub, prior=shape,
                                                             shape_prior=strength, max_iter=max_iter,
                                                             tol_deg=tol_deg, dof_below=11 + spare_obs)
             # a model whose normal faces away from the camera is not taken: the next simpler one is
@@ -122,6 +123,10 @@ class Biquadratic:
             b[idx], coeffs[idx], rss[idx] = b_fit[take], c_fit[take], rss_fit[take]
             status[idx] = np.where(moving[take], STATUS["not_converged"], code)
             todo = todo[~take]
+        lambert = np.flatnonzero(np.isnan(rss))   # the pixels left with their Lambertian fit
+        if lambert.size:
+            sub = lights if lights.ndim == 2 else lights[lambert]
+            rss[lambert] = np.sum(weights[lambert] * (obs[lambert] - shading(b[lambert], sub)) ** 2, axis=1)
         return {"b": b, "status": no_normal(status, b), "used": used, "lit": base.sum(axis=1), "rss": rss,
                 "params": to_paper_order(coeffs)}
 
