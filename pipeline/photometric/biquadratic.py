@@ -157,9 +157,10 @@ def biquadratic_method(obs, valid, lights, **options):
         :data:`FALLBACK_T_LOW`; None turns the fallback off): when the object fails the
         single-material check, every pixel keeps its darkest ``fallback_t_low`` fraction and is
         fitted without the prior.
-    max_iter, tol
-        Alternation limit (10) and convergence threshold: relative change of the pixel's
-        residual (1e-6; the paper stops at an absolute change of 1e-7).
+    max_iter, tol_deg
+        Levenberg-Marquardt steps per pixel at most (:data:`MAX_ITER`, 50) and the turn of the
+        normal in a step below which a pixel stops (:data:`TOL_DEG`, 0.1 degree); a pixel still
+        turning after ``max_iter`` steps is ``not_converged``.
     specular_anchor : {'auto', True, False}
         Handled by :func:`estimate_normals` (not by this per-chunk function): correct the
         lights' polar angles from sharp specular peaks, see :mod:`pipeline.photometric.anchor`.
