@@ -232,3 +232,18 @@ def test_a_bracketed_decode_killed_mid_way_resumes_from_the_merges_done(tmp_path
     for group in record["merged"]:
         assert np.array_equal(read_image(root / "linear" / f"{group}.exr"),
                               read_image(pristine / "linear" / f"{group}.exr")), group
+
+
+def test_a_ctrl_c_inside_a_commit_is_held_until_it_is_reported():
+    # the bookkeeping of a committed frame runs to its end; the Ctrl-C is raised right after
+    from pipeline.decode.pool import _deferred_interrupt
+
+    steps = []
+    with pytest.raises(KeyboardInterrupt):
+        with _deferred_interrupt():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)   # the signal is delivered here, and held
+            steps.append("reported")
+        steps.append("after")   # never reached: the held Ctrl-C is raised at the block's end
+    assert steps == ["reported"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
