@@ -626,10 +626,11 @@ def _select_shared(obs, lights, base, k_high, k_low, iterations, min_obs, triple
     """:func:`_select_one` for every pixel under shared lights (K, 3)."""
     n_pix, k = obs.shape
     scratch, sort32, packed = np.empty(k), np.empty(k, np.float32), np.empty((4, k))
-    solvers = np.empty((len(triplets), 10))
-    _triplet_solvers(lights, triplets, solvers)   # the same for every pixel
+    lt, solvers = np.empty((3, k)), np.empty((len(triplets), 10))
+    _light_rows(lights, lt)
+    _triplet_solvers(lt, triplets, solvers)   # the same for every pixel
     for p in range(n_pix):
-        _select_one(obs[p], lights, base[p], k_high, k_low, iterations, min_obs, triplets, solvers, floor, w_out[p],
+        _select_one(obs[p], lt, base[p], k_high, k_low, iterations, min_obs, triplets, solvers, floor, w_out[p],
                     b_out[p], scratch, sort32, packed)
 
 
@@ -637,11 +638,19 @@ def _select_per_pixel(obs, lights, base, k_high, k_low, iterations, min_obs, tri
     """:func:`_select_one` for every pixel under per-pixel lights (N, K, 3)."""
     n_pix, k = obs.shape
     scratch, sort32, packed = np.empty(k), np.empty(k, np.float32), np.empty((4, k))
-    solvers = np.empty((len(triplets), 10))
+    lt, solvers = np.empty((3, k)), np.empty((len(triplets), 10))
     for p in range(n_pix):
-        _triplet_solvers(lights[p], triplets, solvers)
-        _select_one(obs[p], lights[p], base[p], k_high, k_low, iterations, min_obs, triplets, solvers, floor, w_out[p],
+        _light_rows(lights[p], lt)
+        _triplet_solvers(lt, triplets, solvers)
+        _select_one(obs[p], lt, base[p], k_high, k_low, iterations, min_obs, triplets, solvers, floor, w_out[p],
                     b_out[p], scratch, sort32, packed)
+
+
+def _light_rows(lights, lt):
+    """lt (3, K) := lights (K, 3) transposed: one row per component, so that the passes over a
+    pixel's observations read contiguous memory and vectorise."""
+    for j in range(lights.shape[0]):
+        lt[0, j], lt[1, j], lt[2, j] = lights[j, 0], lights[j, 1], lights[j, 2]
 
 
 def _triplet_solvers(lt, triplets, solvers):
@@ -649,9 +658,9 @@ def _triplet_solvers(lt, triplets, solvers):
     so that b = cofactors . obs / det (the arithmetic of :func:`_solve3`)."""
     for t in range(len(triplets)):
         i0, i1, i2 = triplets[t, 0], triplets[t, 1], triplets[t, 2]
-        a00, a01, a02 = lt[i0, 0], lt[i0, 1], lt[i0, 2]
-        a10, a11, a12 = lt[i1, 0], lt[i1, 1], lt[i1, 2]
-        a20, a21, a22 = lt[i2, 0], lt[i2, 1], lt[i2, 2]
+        a00, a01, a02 = lt[0, i0], lt[1, i0], lt[2, i0]
+        a10, a11, a12 = lt[0, i1], lt[1, i1], lt[2, i1]
+        a20, a21, a22 = lt[0, i2], lt[1, i2], lt[2, i2]
         c00, c01, c02 = a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11
         c10, c11, c12 = a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12
         c20, c21, c22 = a10 * a21 - a11 * a20, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10
@@ -676,7 +685,7 @@ def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, solver
                     floor * math.sqrt(b0 * b0 + b1 * b1 + b2 * b2))
         kept = 0
         for j in range(k):
-            inside = lit[j] > 0.0 and abs(o[j] - (b0 * lt[j, 0] + b1 * lt[j, 1] + b2 * lt[j, 2])) <= _K_IN * scale
+            inside = lit[j] > 0.0 and abs(o[j] - (b0 * lt[0, j] + b1 * lt[1, j] + b2 * lt[2, j])) <= _K_IN * scale
             w[j] = 1.0 if inside else 0.0
             kept += inside
         if kept < 3:
@@ -686,7 +695,7 @@ def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, solver
     for _ in range(iterations):
         c = 0
         for j in range(k):
-            scratch[j] = o[j] - (b[0] * lt[j, 0] + b[1] * lt[j, 1] + b[2] * lt[j, 2])
+            scratch[j] = o[j] - (b[0] * lt[0, j] + b[1] * lt[1, j] + b[2] * lt[2, j])
             if w[j] > 0.0:
                 sort32[c] = np.float32(abs(scratch[j]))
                 c += 1
@@ -721,7 +730,7 @@ def _consensus(o, lt, lit, m, triplets, solvers, scratch, packed):
     for j in range(k):
         if lit[j] > 0.0:
             if c < scored and rank == (c * m) // scored:
-                oc[c], l0[c], l1[c], l2[c] = o[j], lt[j, 0], lt[j, 1], lt[j, 2]
+                oc[c], l0[c], l1[c], l2[c] = o[j], lt[0, j], lt[1, j], lt[2, j]
                 c += 1
             rank += 1
     m = scored
@@ -761,7 +770,7 @@ def _lambert(o, lt, w, b):
     r0 = r1 = r2 = 0.0
     for j in range(len(o)):
         if w[j] != 0.0:
-            l0, l1, l2 = lt[j, 0], lt[j, 1], lt[j, 2]
+            l0, l1, l2 = lt[0, j], lt[1, j], lt[2, j]
             wj = w[j]
             a00 += wj * l0 * l0
             a01 += wj * l0 * l1
@@ -843,7 +852,7 @@ _PY = {name: globals()[name] for name in (
     "_scratch", "_fit_shared", "_fit_per_pixel", "_compact", "_fit_one", "_iterate", "_geometry", "_tangents",
     "_moments", "_basis_sums", "_spread_moments", "_coefficient_system", "_normal_terms", "_penalty_value", "_cost",
     "_rss_albedo", "_hat_trace", "_cholesky_solve", "_cholesky_factor", "_cholesky_substitute", "_select_shared",
-    "_select_per_pixel", "_triplet_solvers", "_select_one", "_consensus", "_lambert", "_solve3", "_quickselect", "_kth_by_bits",
+    "_select_per_pixel", "_light_rows", "_triplet_solvers", "_select_one", "_consensus", "_lambert", "_solve3", "_quickselect", "_kth_by_bits",
     "_shape_shared", "_shape_per_pixel", "_shape_one")}
 #: The compiled kernels, built on first use (:func:`kernels`)
 KERNELS = Compiled("photometric-stereo kernels", _build)
