@@ -509,7 +509,7 @@ def _hat_trace(data, pen, a, cols):
 def _cholesky_solve(a, rhs, out, size):
     """Solve the symmetric positive definite a (size, size) out = rhs; NaN if not positive definite.
 
-    a is overwritten by its Cholesky factor (lower triangle).
+    a is overwritten by its Cholesky factor (see :func:`_cholesky_factor`).
     """
     if _cholesky_factor(a, size):
         _cholesky_substitute(a, rhs, out, size)
@@ -519,35 +519,36 @@ def _cholesky_solve(a, rhs, out, size):
 
 
 def _cholesky_factor(a, size):
-    """a's lower triangle := its Cholesky factor; False if a is not positive definite."""
+    """a's lower triangle := its Cholesky factor L, with 1 / L_jj on the diagonal (the solves
+    then multiply: a division per column, not per entry); False if a is not positive definite."""
     for j in range(size):
         d = a[j, j]
         for k in range(j):
             d -= a[j, k] * a[j, k]
         if not d > 0.0:
             return False
-        d = math.sqrt(d)
-        a[j, j] = d
+        inverse = 1.0 / math.sqrt(d)
+        a[j, j] = inverse
         for i in range(j + 1, size):
             v = a[i, j]
             for k in range(j):
                 v -= a[i, k] * a[j, k]
-            a[i, j] = v / d
+            a[i, j] = v * inverse
     return True
 
 
 def _cholesky_substitute(a, rhs, out, size):
-    """out = (L L')^-1 rhs for the factor L in a's lower triangle."""
+    """out = (L L')^-1 rhs for the factor of :func:`_cholesky_factor` in a."""
     for i in range(size):
         v = rhs[i]
         for k in range(i):
             v -= a[i, k] * out[k]
-        out[i] = v / a[i, i]
+        out[i] = v * a[i, i]
     for i in range(size - 1, -1, -1):
         v = out[i]
         for k in range(i + 1, size):
             v -= a[k, i] * out[k]
-        out[i] = v / a[i, i]
+        out[i] = v * a[i, i]
 
 
 # ----------------------------------------------------------------------------- shared-shape kernels
