@@ -127,3 +127,17 @@ def test_compiled_shape_terms_match_numpy(glossy, per_pixel, monkeypatch):
     # the 9 coefficients are nearly collinear under a 40-degree cone: rounding shows at 1e-5
     np.testing.assert_allclose(fast[0], slow[0], rtol=1e-4, atol=1e-9)
     assert row_angles_deg(fast[1], slow[1]).max() < 1e-4
+
+
+def test_compiled_fit_under_per_pixel_lights_matches_shared(glossy):
+    # per-pixel lights (near lights) that happen to be the same everywhere give the shared result
+    from pipeline.photometric.model import half_vectors
+
+    obs, weights, b, lights, h, y = glossy
+    penalty = penalty_matrix(LAMBERT_SHAPE, 0.01)
+    shared = ps_kernels.fit_pixels_jit(obs, weights, b, lights, h, y, penalty, MAX_ITER, TOL_DEG)
+    per_pixel = np.broadcast_to(lights, (len(obs),) + lights.shape).copy()
+    hp, yp = half_vectors(per_pixel)
+    each = ps_kernels.fit_pixels_jit(obs, weights, b, per_pixel, hp, yp, penalty, MAX_ITER, TOL_DEG)
+    assert row_angles_deg(shared[0], each[0]).max() < 1e-5   # arccos resolves about 1e-6 degrees here
+    np.testing.assert_allclose(each[2], shared[2], rtol=1e-9)
