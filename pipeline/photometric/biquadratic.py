@@ -11,6 +11,8 @@ the automatic narrow-cone path, every pixel falls back to the paper's darkest-fr
 without the prior. The rules and the measurements behind them: docs/photometric-stereo.md.
 """
 
+import concurrent.futures as futures
+
 import numpy as np
 
 from .model import half_vectors, to_paper_order
@@ -46,27 +48,29 @@ class Biquadratic:
     """The default method; see the module docstring and :func:`biquadratic_method`."""
 
     def prepare(self, gather, pixels, shape_prior=0.01, sample_pixels=SAMPLE_PIXELS, seed=0,
-                min_shape_obs=MIN_SHAPE_OBS, **options):
+                min_shape_obs=MIN_SHAPE_OBS, threads=1, **options):
         """Fit the shared shape on a fixed random subsample of the object's pixels.
 
         Returns the context every chunk is solved with (the tiled stage computes it once and
         hands the same dict to every tile): ``shape`` (3, 3) and ``shape_paper`` (9,) when the
         shared shape is used, and ``shape_check`` (:func:`single_material_check`), which holds
         ``fallback`` when the object failed it and its pixels get the Lambertian prior instead.
+        ``threads`` > 1 splits the sample's selection and the shape's terms over that many
+        threads (for a preparation that nothing else runs beside: the anchor's probe).
         """
         if shape_prior is None or shape_prior <= 0 or options.get("shared_shape") is False:
             return {}
         rng = np.random.default_rng(seed)
         take = np.sort(rng.choice(len(pixels), min(sample_pixels, len(pixels)), replace=False))
         obs, valid, lights = gather(pixels[take])
-        base, weights, b = select_observations(obs, valid, lights, **options)
+        base, weights, b = _select_sample(obs, valid, lights, threads, options)
         good = weights.sum(axis=1) >= min_shape_obs
         if good.sum() < 20:
             return {}
         h, y = half_vectors(lights)
         sel = (lambda a: a[good]) if lights.ndim == 3 else (lambda a: a)
         shape, b_shared = fit_shared_shape(obs[good], weights[good], b[good], sel(lights), sel(h), sel(y),
-                                           iterations=SHAPE_ITERATIONS)
+                                           iterations=SHAPE_ITERATIONS, threads=threads)
         if not np.isfinite(shape).all():
             return {}
         if options.get("shape_check") is False:  # the caller insists on the prior
@@ -129,6 +133,19 @@ class Biquadratic:
             rss[lambert] = np.sum(weights[lambert] * (obs[lambert] - shading(b[lambert], sub)) ** 2, axis=1)
         return {"b": b, "status": no_normal(status, b), "used": used, "lit": base.sum(axis=1), "rss": rss,
                 "params": to_paper_order(coeffs)}
+
+
+def _select_sample(obs, valid, lights, threads, options):
+    """select_observations of the sample's pixels, in ``threads`` parts at once (a pixel's
+    selection depends on that pixel alone)."""
+    if threads <= 1 or len(obs) < 128:
+        return select_observations(obs, valid, lights, **options)
+    parts = np.array_split(np.arange(len(obs)), threads)
+    rows = (lambda a, i: None if a is None else a[i])
+    with futures.ThreadPoolExecutor(threads) as pool:
+        done = list(pool.map(lambda i: select_observations(obs[i], rows(valid, i),
+                                                           lights[i] if lights.ndim == 3 else lights, **options), parts))
+    return tuple(np.concatenate([part[k] for part in done]) for k in range(3))
 
 
 METHODS.register("biquadratic", Biquadratic())

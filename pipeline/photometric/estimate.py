@@ -11,6 +11,7 @@ and returns a :class:`PhotometricResult`. The tiled stage (:mod:`pipeline.photom
 makes the same plan and the same result from its tiles.
 """
 
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -240,8 +241,8 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
             # the first solve passed the single-material check: the probe keeps its verdict
             # rather than testing again (about a third of the probe's preparation)
             options = dict(options, shape_check=False)
-        with threadpool_limits(1):
-            context = prepare_context(plan.solver, gather, pixels, options)
+        with threadpool_limits(1):   # nothing runs beside the probe's preparation: all cores
+            context = prepare_context(plan.solver, gather, pixels, dict(options, threads=workers or os.cpu_count() or 1))
         return run(run_lights, on=np.sort(runs[0].peaks), context=context).mismatch
 
     options = dict(plan.options)

@@ -111,14 +111,15 @@ def select_robust_jit(obs, lights, base, k_high, k_low, iterations, min_obs, tri
     return weights, b
 
 
-def shape_terms_jit(obs, weights, b, coeffs, lights, h, y, blocks=True, compiled=None):
+def shape_terms_jit(obs, weights, b, coeffs, lights, h, y, blocks=True, compiled=None, executor=None, parts=1):
     """The per-pixel terms of :func:`pipeline.photometric.shared_shape.fit_shared_shape`'s
     Levenberg-Marquardt step at (b (N, 3), coeffs (3, 3)), compiled; None when unavailable.
 
-    ``y`` (K,) or (N, K) is l . h. Returns a dict of per-pixel arrays: ``cost``
-    (N,) the weighted residual sums of squares and, with ``blocks``, ``u`` (N, 3, 3) = J_b' W J_b,
+    ``y`` (K,) or (N, K) is l . h. Returns a dict of per-pixel arrays: ``cost`` (N,) the
+    weighted residual sums of squares and, with ``blocks``, ``u`` (N, 3, 3) = J_b' W J_b,
     ``cross`` (N, 3, 9) = J_b' W J_c, ``moments`` (N, 25) (the 9 x 9 J_c' W J_c from them),
-    ``e_b`` (N, 3), ``e_c`` (N, 9) and ``basis`` (N, 9) = sum_k w x^a y^c.
+    ``e_b`` (N, 3), ``e_c`` (N, 9) and ``basis`` (N, 9) = sum_k w x^a y^c. With an ``executor``
+    the rows are split into ``parts`` run on its threads (the kernel releases the GIL).
     """
     compiled = compiled or kernels()
     if compiled is None:
@@ -126,13 +127,26 @@ def shape_terms_jit(obs, weights, b, coeffs, lights, h, y, blocks=True, compiled
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731 - one fixed signature
     n = len(b)
     size = n if blocks else 0
-    ypow = _y_powers(y)
     out = {"cost": np.empty(n), "u": np.empty((size, 3, 3)), "cross": np.empty((size, 3, 9)),
            "moments": np.empty((size, 25)), "e_b": np.empty((size, 3)), "e_c": np.empty((size, 9)),
            "basis": np.empty((size, 9))}
-    kernel = compiled["_shape_per_pixel" if np.ndim(lights) == 3 else "_shape_shared"]
-    kernel(f64(obs), f64(weights), f64(b), f64(coeffs).reshape(9), f64(lights), f64(h), f64(ypow), bool(blocks),
-           out["cost"], out["u"], out["cross"], out["moments"], out["e_b"], out["e_c"], out["basis"])
+    per_pixel = np.ndim(lights) == 3
+    kernel = compiled["_shape_per_pixel" if per_pixel else "_shape_shared"]
+    obs, weights, b, coeffs, lights, h, ypow = (f64(a) for a in (obs, weights, b, coeffs, lights, h, _y_powers(y)))
+
+    def run(lo, hi):
+        rows = (lambda a: a[lo:hi]) if per_pixel else (lambda a: a)
+        span = (lambda a: a[lo:hi]) if blocks else (lambda a: a)
+        kernel(obs[lo:hi], weights[lo:hi], b[lo:hi], coeffs.reshape(9), rows(lights), rows(h), rows(ypow),
+               bool(blocks), out["cost"][lo:hi], *(span(out[key]) for key in ("u", "cross", "moments", "e_b", "e_c",
+                                                                              "basis")))
+
+    bounds = np.linspace(0, n, max(1, min(parts, n // 64)) + 1).astype(int)
+    if executor is None or len(bounds) <= 2:
+        run(0, n)
+    else:
+        for future in [executor.submit(run, lo, hi) for lo, hi in zip(bounds[:-1], bounds[1:])]:
+            future.result()
     return out if blocks else {"cost": out["cost"]}
 
 

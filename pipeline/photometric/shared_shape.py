@@ -8,6 +8,9 @@ eliminated by a Schur complement) and tests whether one shape is credible for th
 pulls each pixel's parameters toward albedo x this shape.
 """
 
+import concurrent.futures as futures
+import contextlib
+
 import numpy as np
 
 from .model import X_POWER, Y_POWER, cosines, normal_system, powers, shape_and_slope
@@ -17,16 +20,21 @@ from .pixel_fit import fit_pixels
 __all__ = ["fit_shared_shape", "single_material_check", "ONE_MATERIAL_RATIO", "MIN_CHECK_OBS"]
 
 
-def fit_shared_shape(obs, weights, b, lights, h, y, iterations=15):
+def fit_shared_shape(obs, weights, b, lights, h, y, iterations=15, threads=1):
     """One biquadratic shape (3, 3) for all given pixels, fitted jointly with their b (N, 3).
 
     Levenberg-Marquardt over the 9 shared and 3N per-pixel unknowns; the per-pixel 3 x 3 blocks
     are eliminated (Schur complement), so each step solves one 9 x 9 system. The shape is
     normalised to mean 1 over the used observations (albedo carries the scale). The per-pixel
     terms are compiled (:func:`pipeline.photometric.kernels.shape_terms_jit`) unless the kernels
-    are unavailable (then numpy, :func:`_numpy_terms`, the reference).
+    are unavailable (then numpy, :func:`_numpy_terms`, the reference), on ``threads`` threads.
     """
-    terms = _terms_function(obs, weights, lights, h, y)
+    with futures.ThreadPoolExecutor(threads) if threads > 1 else contextlib.nullcontext() as executor:
+        return _fit(_terms_function(obs, weights, lights, h, y, executor, threads), b, iterations)
+
+
+def _fit(terms, b, iterations):
+    """fit_shared_shape's Levenberg-Marquardt loop over ``terms`` (:func:`_terms_function`)."""
     coeffs = np.zeros((3, 3))
     coeffs[0, 0] = 1.0
     cost = terms(b, coeffs, False)
@@ -49,14 +57,14 @@ def fit_shared_shape(obs, weights, b, lights, h, y, iterations=15):
     return coeffs, b
 
 
-def _terms_function(obs, weights, lights, h, y):
+def _terms_function(obs, weights, lights, h, y, executor=None, parts=1):
     """``terms(b, coeffs, blocks)``: the data cost (float) at (b, coeffs), or with ``blocks`` the
     summed LM blocks (dict: cost, u (N, 3, 3), cross (N, 3, 9), v (9, 9), e_b (N, 3), e_c (9,),
     basis (9,) = sum w x^a y^c over every pixel)."""
     weight_sum = max(float(np.sum(weights)), 1e-300)
 
     def compiled(b, coeffs, blocks):
-        out = shape_terms_jit(obs, weights, b, coeffs, lights, h, y, blocks)
+        out = shape_terms_jit(obs, weights, b, coeffs, lights, h, y, blocks, executor=executor, parts=parts)
         if out is None:
             return None
         cost = float(np.sum(out["cost"]))
@@ -102,16 +110,27 @@ def _shared_state(obs, weights, b, coeffs, lights, h, y3):
     return float(np.sum(weights * resid**2)), albedo, n, x, cos, rho, slope, resid
 
 
+def _inverse3(a):
+    """Inverses (N, 3, 3) of symmetric positive definite 3 x 3 matrices, by cofactors (the
+    batched LAPACK call costs more than the arithmetic at this size)."""
+    a00, a01, a02, a11, a12, a22 = a[:, 0, 0], a[:, 0, 1], a[:, 0, 2], a[:, 1, 1], a[:, 1, 2], a[:, 2, 2]
+    c00, c01, c02 = a11 * a22 - a12 * a12, a02 * a12 - a01 * a22, a01 * a12 - a02 * a11
+    c11, c12, c22 = a00 * a22 - a02 * a02, a01 * a02 - a00 * a12, a00 * a11 - a01 * a01
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    inverse = np.stack([c00, c01, c02, c01, c11, c12, c02, c12, c22], axis=1).reshape(-1, 3, 3)
+    return inverse / det[:, None, None]
+
+
 def _schur_step(b, coeffs, blocks, damping):
     """The damped step from the summed blocks: (b_new (N, 3), coeffs_new (3, 3)), or None."""
     u, cross, v, e_b, e_c = (blocks[key] for key in ("u", "cross", "v", "e_b", "e_c"))
     u = u + (damping * np.trace(u, axis1=1, axis2=2) / 3 + 1e-12)[:, None, None] * np.eye(3)
-    u_inv = np.linalg.inv(u)
+    u_inv = _inverse3(u)
     u_cross = u_inv @ cross
     u_e = np.einsum("nij,nj->ni", u_inv, e_b)
-    schur = v - np.einsum("nki,nkj->ij", cross, u_cross)
+    schur = v - cross.reshape(-1, 9).T @ u_cross.reshape(-1, 9)     # sum_n cross_n' U_n^-1 cross_n
     schur += (damping * np.trace(schur) / 9 + 1e-12 * abs(np.trace(schur)) + 1e-300) * np.eye(9)
-    rhs = e_c - np.einsum("nki,nk->i", cross, u_e)
+    rhs = e_c - cross.reshape(-1, 9).T @ u_e.reshape(-1)
     try:
         d_c = np.linalg.solve(schur, rhs)
     except np.linalg.LinAlgError:
