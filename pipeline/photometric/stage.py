@@ -26,8 +26,8 @@ from .methods import STATUS, STATUS_NAMES, STATUS_PALETTE, share_text
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
 
-__all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "load_object_stack", "object_mask",
-           "light_model", "stage_params", "model_record", "normals_warnings", "normals_summary", "STAGE",
+__all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack",
+           "object_mask", "light_model", "stage_params", "model_record", "normals_warnings", "normals_summary", "STAGE",
            "LIGHT_MODELS", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS", "WARN_SHARES"]
 
 STAGE = "normals"
@@ -176,8 +176,27 @@ def begin_normals(session, *, method="biquadratic", force=False, lights_model="a
                       mask_rel, started)
 
 
-def load_object_stack(session, frames, lights):
-    """Grey linear stack (K, H, W) with intensities divided out, and valid (K, H, W) bool."""
+class ChannelSums:
+    """Each pixel's sum over its unsaturated observations of every colour channel (intensities
+    divided out), (H, W, C) float32, gathered frame by frame while :func:`load_object_stack`
+    reads the frames: the albedo's colour (:func:`_albedo_channels`) then needs no second pass
+    over them (on DiLiGenT reading that pass was 0.33 s of a 2 s stage)."""
+
+    def __init__(self):
+        self.sums, self.grey = None, False
+
+    def add(self, linear, gain, saturated):
+        if linear.shape[2] < 2:
+            self.grey = True
+            return
+        scaled = linear * (1.0 / gain).astype(np.float32)
+        scaled[saturated] = 0.0
+        self.sums = scaled if self.sums is None else np.add(self.sums, scaled, out=self.sums)
+
+
+def load_object_stack(session, frames, lights, channels=None):
+    """Grey linear stack (K, H, W) with intensities divided out, and valid (K, H, W) bool;
+    ``channels`` (a :class:`ChannelSums`) gathers the colour sums on the way."""
     images, valid = [], []
     for frame in frames:
         linear = read_image(session.linear_path(frame))
@@ -187,6 +206,8 @@ def load_object_stack(session, frames, lights):
             raise StageError(f"{session.path(LIGHTS)}: light {frame['light']} has a non-positive intensity")
         images.append((linear / gain.astype(np.float32)).mean(axis=2))
         valid.append(~read_mask(session.saturation_path(frame)))
+        if channels is not None:
+            channels.add(linear, gain, ~valid[-1])
         if images[-1].shape != images[0].shape:
             raise StageError(f"{session.linear_path(frame)}: size {images[-1].shape} differs from "
                              f"{session.linear_path(frames[0])}'s {images[0].shape}")
@@ -221,7 +242,8 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
                         **options)
     if run is None:
         return None
-    images, valid = load_object_stack(session, run.frames, run.lights)
+    channels = ChannelSums()
+    images, valid = load_object_stack(session, run.frames, run.lights, channels)
     mask = object_mask(session, run, images)
     passes = PASSES if run.model == "near" and near_depth else 0
     with progress_bar(total=int(mask.sum()) * (1 + passes), desc="normals", unit="px",
@@ -235,16 +257,17 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
             result, depth = refine_near_depth(solve, lights, mask, passes=passes)
         else:
             result, depth = solve(lights, mask), None
-    return record_normals(session, run, result, near_depth=depth)
+    return record_normals(session, run, result, near_depth=depth, channels=channels)
 
 
-def record_normals(session, run, result, near_depth=None):
+def record_normals(session, run, result, near_depth=None, channels=None):
     """Write ``normals/`` from a :class:`PhotometricResult` and record the stage; returns the record.
 
     ``near_depth`` is :func:`pipeline.photometric.near_depth.refine_near_depth`'s report, kept
-    when it ran a pass.
+    when it ran a pass; ``channels`` the :class:`ChannelSums` of the frames, when they were
+    gathered (else the frames are read again for the albedo's colour).
     """
-    outputs = _write_outputs(session, result)
+    outputs = _write_outputs(session, result, channels)
     counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
     extra = {"pixels": int(result.mask.sum()), "status_counts": counts, **run.extra()}
     if near_depth is not None and near_depth["passes"]:
@@ -302,9 +325,9 @@ def normals_summary(record):
     return f"{record.get('pixels', 0)} pixels: {shares}{cone}{flagged}"
 
 
-def _write_outputs(session, result):
+def _write_outputs(session, result, channels=None):
     mask = result.mask
-    albedo = _albedo_channels(session, result)
+    albedo = _albedo_channels(session, result, channels)
     # normals.exr names its channels for what they hold (camera frame: x right, y up, z toward
     # the camera) rather than R, G, B; readers take them in this order
     write_image(session.path("normals/normals.exr"), result.normals.astype(np.float32),
@@ -324,7 +347,7 @@ def _write_outputs(session, result):
                                       "mask.png", "status.png", "status_vis.png")] + [OBSERVATIONS, LIT_OBSERVATIONS]
 
 
-def _albedo_channels(session, result):
+def _albedo_channels(session, result, channels=None):
     """The albedo (H, W) grey, or (H, W, C) when the object frames have C > 1 colour channels:
     the grey albedo times each pixel's channel ratio, sum_k I_kc / sum_k mean_c I_kc over its
     unsaturated observations (intensities divided out, as the solve saw them).
@@ -333,19 +356,16 @@ def _albedo_channels(session, result):
     all noise, barely count; its channel mean is 1, so the channels average to the grey albedo.
     Frames are read one at a time: memory stays (H, W, C) whatever the light count.
     """
-    lights, frames = _read_stage_lights(session, _object_frames(session))
-    sums = None
-    for frame in frames:
-        linear = read_image(session.linear_path(frame))
-        if linear.shape[2] < 2 or linear.shape[:2] != result.albedo.shape:
-            return result.albedo
-        gain = lights.intensities[frame["light"]]
-        gain = gain if gain.size == linear.shape[2] else np.full(linear.shape[2], gain.mean())
-        # in place and in float32: this pass re-reads every frame, so it must stay cheap
-        linear *= (1.0 / gain).astype(np.float32)
-        linear[read_mask(session.saturation_path(frame))] = 0.0
-        sums = linear if sums is None else np.add(sums, linear, out=sums)
-    if sums is None:
+    if channels is None:
+        channels = ChannelSums()
+        lights, frames = _read_stage_lights(session, _object_frames(session))
+        for frame in frames:
+            linear = read_image(session.linear_path(frame))
+            gain = lights.intensities[frame["light"]]
+            gain = gain if gain.size == linear.shape[2] else np.full(linear.shape[2], gain.mean())
+            channels.add(linear, gain, read_mask(session.saturation_path(frame)))
+    sums = channels.sums
+    if channels.grey or sums is None or sums.shape[:2] != result.albedo.shape:
         return result.albedo
     grey = sums.mean(axis=2, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
