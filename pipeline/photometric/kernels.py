@@ -9,6 +9,11 @@ on DiLiGenT reading, 30 -> 9 us per pixel with the fit's variable projection and
 Lights may be shared (K, 3) or per pixel (N, K, 3). Everything is float64; each pixel's result
 depends on that pixel alone, so it is the same whatever chunk it is computed in.
 
+The three families (the fit, the selection, the shared shape's terms) share their helpers and
+stay in this one file on purpose: numba's on-disk cache checks only the file a function is
+defined in, so a kernel calling a helper from another file would load stale compiled code
+after that file changed.
+
 Nothing is compiled at import: the kernels are compiled (or loaded from numba's on-disk cache)
 at the first call through :class:`pipeline.jit.Compiled`, under a lock, so concurrent chunk
 threads wait for one compilation. The kernels release the GIL (``nogil``), so the chunk
