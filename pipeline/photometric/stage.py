@@ -182,8 +182,8 @@ class ChannelSums:
     reads the frames: the albedo's colour (:func:`_albedo_channels`) then needs no second pass
     over them (on DiLiGenT reading that pass was 0.33 s of a 2 s stage)."""
 
-    def __init__(self):
-        self.sums, self.grey = None, False
+    def __init__(self, sums=None):
+        self.sums, self.grey = sums, False
 
     def add(self, linear, gain, saturated):
         if linear.shape[2] < 2:

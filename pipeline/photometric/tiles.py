@@ -40,12 +40,15 @@ from .anchor import first_verdict
 from .engine import CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context, scatter_chunk, \
     solve_chunk
 from .estimate import check_lights, plan_solve, result_from_maps
-from .stage import STAGE, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
+from .stage import STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
 
 __all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
            "tile_context", "SCRATCH", "WHOLE_IMAGE"]
 
 SCRATCH = TILES_SCRATCH
+#: the scratch file of the frames' colour sums (:class:`pipeline.photometric.stage.ChannelSums`),
+#: gathered while the stack is written, so that the albedo's colour needs no second read
+CHANNELS = "channels.npy"
 #: :func:`assemble_normals`' answer when the lights need the specular-peak correction
 #: (:mod:`pipeline.photometric.anchor`): one global scale, applied to every pixel, that only a solve of
 #: the whole image can make; the caller then runs the serial normals stage. :func:`plan_normals`
@@ -150,8 +153,12 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=CH
     if run.model == "near" and run.near_depth:
         return WHOLE_IMAGE
     folder.mkdir(parents=True)
-    peak = write_stack(folder, run.frames, lambda frame: _load_frame(session, frame, run.lights),
+    channels = ChannelSums()
+    peak = write_stack(folder, run.frames, lambda frame: _load_frame(session, frame, run.lights, channels),
                        name=session.linear_path)
+    if channels.sums is not None and not channels.grey:   # the albedo's colour, for assemble_normals
+        with atomic_path(folder / CHANNELS) as tmp:
+            np.save(tmp, channels.sums)
     mask = object_mask(session, run, peak[None])
     if not mask.any():
         raise InputError(f"{session.root}: normals: the mask has no pixels")
@@ -166,9 +173,9 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=CH
                     pixel_tiles(mask, tile_pixels, chunk), chunk, run)
 
 
-def _load_frame(session, frame, lights):
+def _load_frame(session, frame, lights, channels=None):
     # the same arithmetic as the serial stage, one frame at a time
-    images, valid = load_object_stack(session, [frame], lights)
+    images, valid = load_object_stack(session, [frame], lights, channels)
     return images[0], valid[0]
 
 
@@ -275,6 +282,9 @@ def assemble_normals(plan, tile_paths=None):
             return WHOLE_IMAGE
         options.update(verdict)
     shared = {key: plan.context.get(key) for key in SHARED_KEYS}
-    record = record_normals(session, plan.run, result_from_maps(out, mask, plan.solve.method, options, shared))
+    saved = plan.scratch(CHANNELS)
+    channels = ChannelSums(np.load(saved)) if saved.is_file() else None   # else the frames are read again
+    record = record_normals(session, plan.run, result_from_maps(out, mask, plan.solve.method, options, shared),
+                            channels=channels)
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record
