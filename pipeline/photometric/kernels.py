@@ -173,10 +173,11 @@ def _scratch(k):
     """Per-call scratch of the fit kernels (allocated once per call, not once per pixel).
 
     ``soa`` (12, K) holds a pixel's used observations, one quantity per row so that the passes
-    over them vectorise: obs, weight, l (3 rows), h (3 rows), y^1..y^4. ``work`` (8, K) holds
-    per-observation terms: x, s at the current and the trial normal, then four weighted terms.
+    over them vectorise: obs, weight, l (3 rows), h (3 rows), y^1..y^4. ``work`` (7, K) holds
+    per-observation terms: x, s at the current and the trial normal, then three weighted terms.
+    ``vecs`` (11, 9) holds the small vectors (its rows: see :func:`_fit_one` and :func:`_iterate`).
     """
-    return np.empty((12, k)), np.empty((8, k)), np.empty((3, 9, 9)), np.empty((14, 11)), np.empty(25), \
+    return np.empty((12, k)), np.empty((7, k)), np.empty((3, 9, 9)), np.empty((11, 9)), np.empty(25), \
         np.empty((2, 9))
 
 
@@ -220,7 +221,7 @@ def _fit_one(soa, m, b0, penalty, max_iter, cos_tol, dof_below, work, mats, vecs
              rss_out, moving_out, dof_out, p):
     """One pixel: the linear start for c, then Levenberg-Marquardt steps; writes its results."""
     norm = math.sqrt(b0[0] * b0[0] + b0[1] * b0[1] + b0[2] * b0[2])
-    n, c, rhs = vecs[0, :3], vecs[1, :9], vecs[2, :9]
+    n, c, rhs = vecs[0, :3], vecs[1], vecs[2]
     for i in range(3):
         n[i] = b0[i] / max(norm, 1e-300)
     xs, cs = work[0], work[1]
@@ -268,8 +269,8 @@ def _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, factor, spar
     (n . h, n . l) of the current n on entry and exit. Returns 1 while the normal still turns.
     See :func:`pipeline.photometric.pixel_fit.fit_pixels_numpy`, which does the same in numpy.
     """
-    rhs, n_try, c_try, t1, t2 = vecs[2, :9], vecs[5, :3], vecs[6, :9], vecs[7, :3], vecs[8, :3]
-    row1, row2, z1, z2 = vecs[10, :9], vecs[11, :9], vecs[12, :9], vecs[13, :9]
+    rhs, n_try, c_try, t1, t2 = vecs[2], vecs[3, :3], vecs[4], vecs[5, :3], vecs[6, :3]
+    row1, row2, z1, z2 = vecs[7], vecs[8], vecs[9], vecs[10]
     mu = _MU0
     nu = 2.0
     xs, cs, xt, ct = work[0], work[1], work[2], work[3]
@@ -416,13 +417,6 @@ def _basis_sums(u, xs, soa, m, out):
     out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7], out[8] = s00, s01, s02, s10, s11, s12, s20, s21, s22
 
 
-def _spread_moments(mom, out, offset):
-    """out[offset + r, offset + q] += the (r, q) entry of the 9 x 9 block of ``mom``."""
-    for r in range(9):
-        for q in range(9):
-            out[offset + r, offset + q] += mom[5 * (r // 3 + q // 3) + r % 3 + q % 3]
-
-
 def _coefficient_system(soa, xs, cs, m, work, mom, data, rhs):
     """data (9, 9) = sum_k w s^2 basis basis^T and rhs (9,) = sum_k w s o basis, basis = x^a y^c."""
     t, u = work[4], work[5]
@@ -433,8 +427,7 @@ def _coefficient_system(soa, xs, cs, m, work, mom, data, rhs):
     _moments(t, xs, soa, m, mom)
     for r in range(9):
         for q in range(9):
-            data[r, q] = 0.0
-    _spread_moments(mom, data, 0)
+            data[r, q] = mom[5 * (r // 3 + q // 3) + r % 3 + q % 3]
     _basis_sums(u, xs, soa, m, rhs)
 
 
@@ -574,7 +567,7 @@ def _cholesky_substitute(a, rhs, out, size):
 def _shape_shared(obs, weights, b, coeffs, lights, h, ypow, blocks, cost, u, cross, moments, e_b, e_c, basis):
     """:func:`_shape_one` for every pixel under shared lights (K, 3)."""
     n_pix, k = obs.shape
-    soa, work = np.empty((12, k)), np.empty((8, k))
+    soa, work = np.empty((12, k)), np.empty((7, k))
     for p in range(n_pix):
         m = _compact(obs[p], weights[p], lights, h, ypow, soa)
         _shape_one(soa, m, b[p], coeffs, blocks, work, cost, u, cross, moments, e_b, e_c, basis, p)
@@ -583,7 +576,7 @@ def _shape_shared(obs, weights, b, coeffs, lights, h, ypow, blocks, cost, u, cro
 def _shape_per_pixel(obs, weights, b, coeffs, lights, h, ypow, blocks, cost, u, cross, moments, e_b, e_c, basis):
     """:func:`_shape_one` for every pixel under per-pixel lights (N, K, 3)."""
     n_pix, k = obs.shape
-    soa, work = np.empty((12, k)), np.empty((8, k))
+    soa, work = np.empty((12, k)), np.empty((7, k))
     for p in range(n_pix):
         m = _compact(obs[p], weights[p], lights[p], h[p], ypow[p], soa)
         _shape_one(soa, m, b[p], coeffs, blocks, work, cost, u, cross, moments, e_b, e_c, basis, p)
@@ -678,20 +671,14 @@ def _light_rows(lights, lt):
 
 
 def _triplet_solvers(lt, triplets, solvers):
-    """solvers (T, 10): each triplet's 3 x 3 light matrix as its 9 cofactors and determinant,
-    so that b = cofactors . obs / det (the arithmetic of :func:`_solve3`)."""
+    """solvers (T, 10): each triplet's 3 x 3 light matrix as its 9 cofactors and determinant
+    (:func:`_cofactors3`), so that b = cofactors . obs / det, the arithmetic of :func:`_solve3`."""
     for t in range(len(triplets)):
         i0, i1, i2 = triplets[t, 0], triplets[t, 1], triplets[t, 2]
-        a00, a01, a02 = lt[0, i0], lt[1, i0], lt[2, i0]
-        a10, a11, a12 = lt[0, i1], lt[1, i1], lt[2, i1]
-        a20, a21, a22 = lt[0, i2], lt[1, i2], lt[2, i2]
-        c00, c01, c02 = a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11
-        c10, c11, c12 = a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12
-        c20, c21, c22 = a10 * a21 - a11 * a20, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10
-        solvers[t, 0], solvers[t, 1], solvers[t, 2] = c00, c01, c02
-        solvers[t, 3], solvers[t, 4], solvers[t, 5] = c10, c11, c12
-        solvers[t, 6], solvers[t, 7], solvers[t, 8] = c20, c21, c22
-        solvers[t, 9] = a00 * c00 + a01 * c10 + a02 * c20
+        cof = _cofactors3(lt[0, i0], lt[1, i0], lt[2, i0], lt[0, i1], lt[1, i1], lt[2, i1],
+                          lt[0, i2], lt[1, i2], lt[2, i2])
+        for i in range(10):
+            solvers[t, i] = cof[i]
 
 
 def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, solvers, floor, w, b, scratch, sort32,
@@ -809,12 +796,17 @@ def _lambert(o, lt, w, b):
     b[0], b[1], b[2] = _solve3(a00 + ridge, a01, a02, a01, a11 + ridge, a12, a02, a12, a22 + ridge, r0, r1, r2)
 
 
-def _solve3(a00, a01, a02, a10, a11, a12, a20, a21, a22, r0, r1, r2):
-    """A 3 x 3 solve by cofactors, as :func:`pipeline.photometric.lambert.solve3` (non-finite if singular)."""
+def _cofactors3(a00, a01, a02, a10, a11, a12, a20, a21, a22):
+    """The adjugate of a 3 x 3 matrix, row-major (9 values), and its determinant."""
     c00, c01, c02 = a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11
     c10, c11, c12 = a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12
     c20, c21, c22 = a10 * a21 - a11 * a20, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10
-    det = a00 * c00 + a01 * c10 + a02 * c20
+    return c00, c01, c02, c10, c11, c12, c20, c21, c22, a00 * c00 + a01 * c10 + a02 * c20
+
+
+def _solve3(a00, a01, a02, a10, a11, a12, a20, a21, a22, r0, r1, r2):
+    """A 3 x 3 solve by cofactors, as :func:`pipeline.photometric.lambert.solve3` (non-finite if singular)."""
+    c00, c01, c02, c10, c11, c12, c20, c21, c22, det = _cofactors3(a00, a01, a02, a10, a11, a12, a20, a21, a22)
     return ((c00 * r0 + c01 * r1 + c02 * r2) / det, (c10 * r0 + c11 * r1 + c12 * r2) / det,
             (c20 * r0 + c21 * r1 + c22 * r2) / det)
 
@@ -872,9 +864,9 @@ def _kth_by_bits(a, bits, n, kth):
 
 _PY = {name: globals()[name] for name in (
     "_scratch", "_fit_shared", "_fit_per_pixel", "_compact", "_fit_one", "_iterate", "_geometry", "_tangents",
-    "_moments", "_basis_sums", "_spread_moments", "_coefficient_system", "_normal_terms", "_penalty_value", "_cost",
-    "_rss_albedo", "_hat_trace", "_cholesky_solve", "_cholesky_factor", "_cholesky_substitute", "_select_shared",
-    "_select_per_pixel", "_light_rows", "_triplet_solvers", "_select_one", "_consensus", "_lambert", "_solve3", "_kth_by_rank", "_kth_by_bits",
-    "_shape_shared", "_shape_per_pixel", "_shape_one")}
+    "_moments", "_basis_sums", "_coefficient_system", "_normal_terms", "_penalty_value", "_cost", "_rss_albedo",
+    "_hat_trace", "_cholesky_solve", "_cholesky_factor", "_cholesky_substitute", "_select_shared",
+    "_select_per_pixel", "_light_rows", "_triplet_solvers", "_select_one", "_consensus", "_lambert", "_cofactors3",
+    "_solve3", "_kth_by_rank", "_kth_by_bits", "_shape_shared", "_shape_per_pixel", "_shape_one")}
 #: The compiled kernels, built on first use (:func:`kernels`)
 KERNELS = Compiled("photometric-stereo kernels", _build)

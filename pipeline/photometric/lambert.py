@@ -2,7 +2,8 @@
 
 import numpy as np
 
-__all__ = ["lambert_weighted", "outer_table", "solve3", "ill_conditioned", "facing_away", "ILL_CONDITIONED"]
+__all__ = ["lambert_weighted", "outer_table", "solve3", "inverse3", "ill_conditioned", "facing_away",
+           "ILL_CONDITIONED"]
 
 #: the weakest direction of a pixel's selected lights, relative to the strongest (eigenvalues of
 #: sum_k w l l^T), below which its normal is not determined (:func:`ill_conditioned`)
@@ -53,13 +54,27 @@ def solve3(a, rhs):
     About twice as fast as :func:`numpy.linalg.solve` for such small matrices, and as accurate
     for the regularised normal matrices solved here. Singular rows give non-finite values.
     """
+    adjugate, det = _adjugate(a)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.einsum("nij,nj->ni", adjugate, rhs) / det[:, None]
+
+
+def inverse3(a):
+    """Inverses (N, 3, 3) of a batch of 3 x 3 matrices a (N, 3, 3) by cofactors, as :func:`solve3`
+    (the batched LAPACK call costs more than the arithmetic at this size). Singular rows give
+    non-finite values."""
+    adjugate, det = _adjugate(a)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return adjugate / det[:, None, None]
+
+
+def _adjugate(a):
+    """The adjugates (N, 3, 3) of 3 x 3 matrices a (N, 3, 3) and their determinants (N,)."""
     a00, a01, a02, a10, a11, a12, a20, a21, a22 = (a[:, i, j] for i in range(3) for j in range(3))
     cof = np.stack([a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11,
                     a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12,
                     a10 * a21 - a11 * a20, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10], axis=-1)
-    det = a00 * cof[:, 0] + a01 * cof[:, 3] + a02 * cof[:, 6]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.einsum("nij,nj->ni", cof.reshape(-1, 3, 3), rhs) / det[:, None]
+    return cof.reshape(-1, 3, 3), a00 * cof[:, 0] + a01 * cof[:, 3] + a02 * cof[:, 6]
 
 
 def ill_conditioned(weights, lights, ratio=ILL_CONDITIONED):
@@ -69,9 +84,8 @@ def ill_conditioned(weights, lights, ratio=ILL_CONDITIONED):
         t = weights @ outer_table(lights)
     else:
         t = np.einsum("nk,nki,nkj->nij", weights, lights, lights).reshape(-1, 9)
-    a00, a01, a02, a11, a12, a22 = t[:, 0], t[:, 1], t[:, 2], t[:, 4], t[:, 5], t[:, 8]
-    trace = a00 + a11 + a22
-    det = a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02)
+    trace = t[:, 0] + t[:, 4] + t[:, 8]
+    det = _adjugate(t.reshape(-1, 3, 3))[1]
     # det <= smallest x trace^2 and largest <= trace, so det >= ratio trace^3 proves a pixel
     # well conditioned; only the others need their eigenvalues (on DiLiGenT: none)
     doubtful = ~((trace > 0) & (det >= ratio * trace ** 3))

@@ -15,6 +15,7 @@ import numpy as np
 
 from .model import X_POWER, Y_POWER, cosines, normal_system, powers, shape_and_slope
 from .kernels import jit_enabled, shape_terms_jit
+from .lambert import inverse3
 from .pixel_fit import fit_pixels
 
 __all__ = ["fit_shared_shape", "single_material_check", "ONE_MATERIAL_RATIO", "MIN_CHECK_OBS"]
@@ -110,22 +111,11 @@ def _shared_state(obs, weights, b, coeffs, lights, h, y3):
     return float(np.sum(weights * resid**2)), albedo, n, x, cos, rho, slope, resid
 
 
-def _inverse3(a):
-    """Inverses (N, 3, 3) of symmetric positive definite 3 x 3 matrices, by cofactors (the
-    batched LAPACK call costs more than the arithmetic at this size)."""
-    a00, a01, a02, a11, a12, a22 = a[:, 0, 0], a[:, 0, 1], a[:, 0, 2], a[:, 1, 1], a[:, 1, 2], a[:, 2, 2]
-    c00, c01, c02 = a11 * a22 - a12 * a12, a02 * a12 - a01 * a22, a01 * a12 - a02 * a11
-    c11, c12, c22 = a00 * a22 - a02 * a02, a01 * a02 - a00 * a12, a00 * a11 - a01 * a01
-    det = a00 * c00 + a01 * c01 + a02 * c02
-    inverse = np.stack([c00, c01, c02, c01, c11, c12, c02, c12, c22], axis=1).reshape(-1, 3, 3)
-    return inverse / det[:, None, None]
-
-
 def _schur_step(b, coeffs, blocks, damping):
     """The damped step from the summed blocks: (b_new (N, 3), coeffs_new (3, 3)), or None."""
     u, cross, v, e_b, e_c = (blocks[key] for key in ("u", "cross", "v", "e_b", "e_c"))
     u = u + (damping * np.trace(u, axis1=1, axis2=2) / 3 + 1e-12)[:, None, None] * np.eye(3)
-    u_inv = _inverse3(u)
+    u_inv = inverse3(u)
     u_cross = u_inv @ cross
     u_e = np.einsum("nij,nj->ni", u_inv, e_b)
     schur = v - cross.reshape(-1, 9).T @ u_cross.reshape(-1, 9)     # sum_n cross_n' U_n^-1 cross_n
