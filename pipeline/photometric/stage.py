@@ -257,15 +257,15 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
             result, depth = refine_near_depth(solve, lights, mask, passes=passes)
         else:
             result, depth = solve(lights, mask), None
-    return record_normals(session, run, result, near_depth=depth, channels=channels)
+    return record_normals(session, run, result, channels, near_depth=depth)
 
 
-def record_normals(session, run, result, near_depth=None, channels=None):
+def record_normals(session, run, result, channels, near_depth=None):
     """Write ``normals/`` from a :class:`PhotometricResult` and record the stage; returns the record.
 
-    ``near_depth`` is :func:`pipeline.photometric.near_depth.refine_near_depth`'s report, kept
-    when it ran a pass; ``channels`` the :class:`ChannelSums` of the frames, when they were
-    gathered (else the frames are read again for the albedo's colour).
+    ``channels`` is the :class:`ChannelSums` gathered while the frames were read (the albedo's
+    colour); ``near_depth`` :func:`pipeline.photometric.near_depth.refine_near_depth`'s report,
+    kept when it ran a pass.
     """
     outputs = _write_outputs(session, result, channels)
     counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
@@ -315,8 +315,8 @@ def normals_warnings(counts, lights, options):
 def normals_summary(record):
     """One line of a normals record: pixels, the status shares, the light correction."""
     pixels = max(record.get("pixels") or 0, 1)
-    shares = ", ".join(f"{name} {share_text(count, pixels)}" for name, count in (record.get("status_counts") or {}).items()
-                       if count)
+    counts = (record.get("status_counts") or {}).items()
+    shares = ", ".join(f"{name} {share_text(count, pixels)}" for name, count in counts if count)
     anchor = record.get("specular_anchor") or {}
     cone = f"; lights' cone scaled by {anchor['cone_scale']:.3f} (specular anchor)" \
         if anchor.get("anchor") == "corrected" else ""
@@ -325,9 +325,9 @@ def normals_summary(record):
     return f"{record.get('pixels', 0)} pixels: {shares}{cone}{flagged}"
 
 
-def _write_outputs(session, result, channels=None):
+def _write_outputs(session, result, channels):
     mask = result.mask
-    albedo = _albedo_channels(session, result, channels)
+    albedo = _albedo_channels(result, channels)
     # normals.exr names its channels for what they hold (camera frame: x right, y up, z toward
     # the camera) rather than R, G, B; readers take them in this order
     write_image(session.path("normals/normals.exr"), result.normals.astype(np.float32),
@@ -347,23 +347,16 @@ def _write_outputs(session, result, channels=None):
                                       "mask.png", "status.png", "status_vis.png")] + [OBSERVATIONS, LIT_OBSERVATIONS]
 
 
-def _albedo_channels(session, result, channels=None):
+def _albedo_channels(result, channels):
     """The albedo (H, W) grey, or (H, W, C) when the object frames have C > 1 colour channels:
     the grey albedo times each pixel's channel ratio, sum_k I_kc / sum_k mean_c I_kc over its
     unsaturated observations (intensities divided out, as the solve saw them).
 
     The ratio of sums weights each observation by its brightness, so shadowed observations,
     all noise, barely count; its channel mean is 1, so the channels average to the grey albedo.
-    Frames are read one at a time: memory stays (H, W, C) whatever the light count.
+    The sums come from ``channels`` (:class:`ChannelSums`), gathered as the frames were read:
+    memory stays (H, W, C) whatever the light count.
     """
-    if channels is None:
-        channels = ChannelSums()
-        lights, frames = _read_stage_lights(session, _object_frames(session))
-        for frame in frames:
-            linear = read_image(session.linear_path(frame))
-            gain = lights.intensities[frame["light"]]
-            gain = gain if gain.size == linear.shape[2] else np.full(linear.shape[2], gain.mean())
-            channels.add(linear, gain, read_mask(session.saturation_path(frame)))
     sums = channels.sums
     if channels.grey or sums is None or sums.shape[:2] != result.albedo.shape:
         return result.albedo

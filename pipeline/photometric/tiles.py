@@ -37,8 +37,8 @@ from ..errors import InputError, StageError
 from ..paths import LIGHTS, TILES_SCRATCH
 from ..session import Session
 from .anchor import first_verdict
-from .engine import CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context, scatter_chunk, \
-    solve_chunk
+from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
+                     scatter_chunk, solve_chunk)
 from .estimate import check_lights, plan_solve, result_from_maps
 from .stage import STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
 
@@ -173,7 +173,7 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=CH
                     pixel_tiles(mask, tile_pixels, chunk), chunk, run)
 
 
-def _load_frame(session, frame, lights, channels=None):
+def _load_frame(session, frame, lights, channels):
     # the same arithmetic as the serial stage, one frame at a time
     images, valid = load_object_stack(session, [frame], lights, channels)
     return images[0], valid[0]
@@ -283,8 +283,8 @@ def assemble_normals(plan, tile_paths=None):
         options.update(verdict)
     shared = {key: plan.context.get(key) for key in SHARED_KEYS}
     saved = plan.scratch(CHANNELS)
-    channels = ChannelSums(np.load(saved)) if saved.is_file() else None   # else the frames are read again
+    channels = ChannelSums(np.load(saved) if saved.is_file() else None)   # none saved: grey frames
     record = record_normals(session, plan.run, result_from_maps(out, mask, plan.solve.method, options, shared),
-                            channels=channels)
+                            channels)
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record
