@@ -140,11 +140,12 @@ def _select_sample(obs, valid, lights, threads, options):
     selection depends on that pixel alone)."""
     if threads <= 1 or len(obs) < 128:
         return select_observations(obs, valid, lights, **options)
-    parts = np.array_split(np.arange(len(obs)), threads)
-    rows = (lambda a, i: None if a is None else a[i])
+    def select(rows):
+        return select_observations(obs[rows], None if valid is None else valid[rows],
+                                   lights[rows] if lights.ndim == 3 else lights, **options)
+
     with futures.ThreadPoolExecutor(threads) as pool:
-        done = list(pool.map(lambda i: select_observations(obs[i], rows(valid, i),
-                                                           lights[i] if lights.ndim == 3 else lights, **options), parts))
+        done = list(pool.map(select, np.array_split(np.arange(len(obs)), threads)))
     return tuple(np.concatenate([part[k] for part in done]) for k in range(3))
 
 

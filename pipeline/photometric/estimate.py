@@ -236,13 +236,15 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         # the first lights' shape the normals barely follow the scale: ball 0.53 -> 0.43 degrees
         # at 1.05 against 0.14 refitted)
         gather = gatherer(flat_images, flat_valid, run_lights)
-        options = plan.options
-        if "fallback" not in (runs[0].shared.get("shape_check") or {"fallback": None}):
+        # nothing runs beside the probe's preparation: it takes every core
+        options = dict(plan.options, threads=workers or os.cpu_count() or 1)
+        check = runs[0].shared.get("shape_check")
+        if check is not None and "fallback" not in check:
             # the first solve passed the single-material check: the probe keeps its verdict
             # rather than testing again (about a third of the probe's preparation)
-            options = dict(options, shape_check=False)
-        with threadpool_limits(1):   # nothing runs beside the probe's preparation: all cores
-            context = prepare_context(plan.solver, gather, pixels, dict(options, threads=workers or os.cpu_count() or 1))
+            options["shape_check"] = False
+        with threadpool_limits(1):
+            context = prepare_context(plan.solver, gather, pixels, options)
         return run(run_lights, on=np.sort(runs[0].peaks), context=context).mismatch
 
     options = dict(plan.options)
