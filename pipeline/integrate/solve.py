@@ -14,7 +14,6 @@ top row, so +y points to decreasing rows.
 Outside the mask the depth is NaN. Methods are registered by name in :data:`METHODS`.
 """
 
-import contextlib
 import inspect
 import time
 from dataclasses import dataclass, field
@@ -24,6 +23,7 @@ from scipy import ndimage
 
 from ..errors import InputError
 from ..registry import Registry
+from ..threads import single_threaded
 from .bilateral import solve_bilateral, solve_smooth
 from .grid import build_problem
 
@@ -125,7 +125,9 @@ def integrate_normals_full(normals, mask, K=None, method="smooth", *, normal_wei
     if normal_weighting is None:
         normal_weighting = NORMAL_WEIGHTING.get(method, False)
     problem = build_problem(normals, mask, K, normal_weighting=bool(normal_weighting))
-    with _single_threaded_blas():
+    # one BLAS thread: the solver's vectors are small, and on a busy machine multithreaded BLAS
+    # calls (inside pyamg) spin-wait and run up to 100x slower
+    with single_threaded("blas"):
         z, info = solver(problem, **options)
     labels, count = ndimage.label(mask)
     depth = _to_depth(z, mask, labels, count, K is not None)
@@ -135,16 +137,6 @@ def integrate_normals_full(normals, mask, K=None, method="smooth", *, normal_wei
     return IntegrationResult(depth, labels.astype(np.int32), int(count), method, K is not None,
                              int(info["iterations"]), int(info["outer_iterations"]),
                              time.perf_counter() - start, warnings)
-
-
-def _single_threaded_blas():
-    """Limit BLAS to one thread: the solver's vectors are small, and on a busy machine
-    multithreaded BLAS calls (inside pyamg) spin-wait and run up to 100x slower."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _to_depth(z, mask, labels, count, perspective):

@@ -18,7 +18,7 @@ import numpy as np
 from .model import half_vectors, to_paper_order
 from .pixel_fit import MAX_ITER, TOL_DEG, fit_pixels
 from .methods import METHODS, MIN_OBS, STATUS, base_status, facing_away, no_normal, shading
-from .selection import select_observations
+from .selection import reuse_selection, select_observations
 from .shared_shape import fit_shared_shape, single_material_check
 
 __all__ = ["Biquadratic", "biquadratic_method", "LAMBERT_SHAPE"]
@@ -48,7 +48,7 @@ class Biquadratic:
     """The default method; see the module docstring and :func:`biquadratic_method`."""
 
     def prepare(self, gather, pixels, shape_prior=0.01, sample_pixels=SAMPLE_PIXELS, seed=0,
-                min_shape_obs=MIN_SHAPE_OBS, threads=1, **options):
+                min_shape_obs=MIN_SHAPE_OBS, threads=1, chosen=None, **options):
         """Fit the shared shape on a fixed random subsample of the object's pixels.
 
         Returns the context every chunk is solved with (the tiled stage computes it once and
@@ -57,13 +57,16 @@ class Biquadratic:
         ``fallback`` when the object failed it and its pixels get the Lambertian prior instead.
         ``threads`` > 1 splits the sample's selection and the shape's terms over that many
         threads (for a preparation that nothing else runs beside: the anchor's probe).
+        ``chosen(idx)`` (optional) gives the observations (n, K) bool an earlier run selected
+        at flat pixels ``idx``: the sample keeps them (:func:`reuse_selection`).
         """
         if shape_prior is None or shape_prior <= 0 or options.get("shared_shape") is False:
             return {}
         rng = np.random.default_rng(seed)
         take = np.sort(rng.choice(len(pixels), min(sample_pixels, len(pixels)), replace=False))
         obs, valid, lights = gather(pixels[take])
-        base, weights, b = _select_sample(obs, valid, lights, threads, options)
+        base, weights, b = _select_sample(obs, valid, lights, threads, options) if chosen is None else \
+            reuse_selection(obs, valid, lights, chosen(pixels[take]), **options)
         good = weights.sum(axis=1) >= min_shape_obs
         if good.sum() < 20:
             return {}
@@ -84,10 +87,12 @@ class Biquadratic:
     def __call__(self, obs, valid, lights, context=None, **options):
         return self.fit(self.select(obs, valid, lights, context=context, **options), context=context, **options)
 
-    def select(self, obs, valid, lights, context=None, **options):
+    def select(self, obs, valid, lights, context=None, chosen=None, **options):
         """Phase one of a chunk, which never waits for the shared shape: its observations'
-        selection. Returns what :meth:`fit` takes."""
-        base, weights, b = select_observations(obs, valid, lights, **options)
+        selection, or with ``chosen`` (N, K) bool the one an earlier run made
+        (:func:`reuse_selection`). Returns what :meth:`fit` takes."""
+        base, weights, b = select_observations(obs, valid, lights, **options) if chosen is None else \
+            reuse_selection(obs, valid, lights, chosen, **options)
         return {"obs": obs, "valid": valid, "lights": lights, "base": base, "weights": weights, "b": b}
 
     def fit(self, picked, context=None, shape_prior=0.01, max_iter=MAX_ITER, tol_deg=TOL_DEG, spare_obs=SPARE_OBS,
@@ -99,7 +104,7 @@ class Biquadratic:
         else the shared shape alone (a multiple of the object's shape, 3 parameters), else the
         Lambertian fit of the selected observations.
         """
-        obs, valid, lights = picked["obs"], picked["valid"], picked["lights"]
+        obs, lights = picked["obs"], picked["lights"]
         base, weights, b = picked["base"], picked["weights"], picked["b"]
         prior = (context or {}).get("shape")   # may wait for the shared shape
         status, used = base_status(weights, base, lights)

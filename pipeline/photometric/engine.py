@@ -21,13 +21,13 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
+from ..threads import single_threaded
 from .anchor import highlight_mismatch
 from .methods import STATUS
 from .near_lights import PointLights, observations_at
 
-__all__ = ["Context", "ChunkRun", "OnePhase", "phases_of", "gatherer", "prepare_context", "solve_chunk",
+__all__ = ["Context", "ChunkRun", "OnePhase", "KeptSelection", "phases_of", "gatherer", "prepare_context", "solve_chunk",
            "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS", "CHUNK_KEYS",
            "NO_NORMAL"]
 
@@ -80,6 +80,40 @@ class OnePhase:
 
     def fit(self, picked, context=None, **options):
         return self.solver(picked["obs"], picked["valid"], picked["lights"], context=context, **options)
+
+
+class KeptSelection:
+    """The observations a run selected at each of its pixels, for later runs to reuse.
+
+    Packed eight to a byte: (P, ceil(K / 8)) bytes, 1/32 of a float32 stack. Chunks put their
+    rows from any worker (each chunk its own rows).
+
+    Parameters
+    ----------
+    pixels : ndarray (P,) int
+        Flat indices of the run's pixels, ascending.
+    count : int
+        Observations per pixel (K).
+    """
+
+    def __init__(self, pixels, count):
+        self.pixels, self.count = pixels, count
+        self.bits = np.zeros((len(pixels), (count + 7) // 8), np.uint8)
+        self._filled = np.zeros(len(pixels), bool)
+
+    def put(self, idx, weights):
+        """Keep ``weights`` (n, K) > 0 for flat pixels ``idx`` (n,)."""
+        rows = np.searchsorted(self.pixels, idx)
+        self.bits[rows] = np.packbits(weights > 0, axis=1)
+        self._filled[rows] = True
+
+    def complete(self):
+        """Whether every pixel has been put (a method without a selection phase puts none)."""
+        return bool(self._filled.all())
+
+    def get(self, idx):
+        """The kept selection (n, K) bool of flat pixels ``idx`` (n,), which must be among ``pixels``."""
+        return np.unpackbits(self.bits[np.searchsorted(self.pixels, idx)], axis=1, count=self.count).astype(bool)
 
 
 def phases_of(solver):
@@ -182,7 +216,7 @@ def scatter_chunk(maps, idx, chunk):
 
 
 def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_size=CHUNK_SIZE, workers=None,
-               progress=None, context=None):
+               progress=None, context=None, keep=None, reuse=None):
     """One estimation over every chunk of ``pixels``.
 
     Parameters
@@ -202,6 +236,9 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
         Pixels per chunk; threads (default: the cores); ``progress(n)`` after each chunk.
     context : dict, optional
         The method's shared context, when it is known already (not prepared again).
+    keep, reuse : KeptSelection, optional
+        Where to keep each chunk's selected observations; a complete one whose selection the
+        chunks (and the context's preparation) take instead of selecting again.
 
     Returns
     -------
@@ -213,6 +250,7 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
     pieces = [pixels[i:i + chunk_size] for i in range(0, len(pixels), chunk_size)]
     chunks = iter(pieces)
     phases = phases_of(solver)
+    chosen = (lambda idx: {"chosen": reuse.get(idx)}) if reuse is not None else (lambda idx: {})
 
     def finish(idx, picked):
         chunk = solve_chunk(phases, picked, context, options, anchor)
@@ -235,7 +273,10 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
                 idx = next(chunks, None)
             if idx is None:
                 break
-            held.append((idx, phases.select(*gather(idx), context=context, **options)))
+            picked = phases.select(*gather(idx), context=context, **chosen(idx), **options)
+            if keep is not None and "weights" in picked:
+                keep.put(idx, picked["weights"])
+            held.append((idx, picked))
             if context.ready() or sum(p["obs"].nbytes for _, p in held) >= LOOKAHEAD_BYTES:
                 for item in held:
                     finish(*item)
@@ -248,11 +289,12 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
     # One BLAS thread per worker, even with one worker: the products here are thin
     # ((N, K) @ (K, <= 9)), so BLAS threads only spin, which measured several times slower
     # (and worse still on a busy machine), besides oversubscribing the cores.
-    with threadpool_limits(1), ThreadPoolExecutor(n_workers) as pool:
+    with single_threaded(), ThreadPoolExecutor(n_workers) as pool:
         # Submitted first, so a worker takes it before any chunk; the other workers select
         # chunks meanwhile.
         if context is None:
-            context = Context(pool.submit(solver.prepare, gather, pixels, **options)
+            reused = {} if reuse is None else {"chosen": reuse.get}
+            context = Context(pool.submit(solver.prepare, gather, pixels, **reused, **options)
                               if hasattr(solver, "prepare") else None)
         else:
             context = Context(pool.submit(dict, context))

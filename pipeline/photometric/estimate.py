@@ -16,11 +16,11 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from ..errors import InputError
+from ..threads import single_threaded
 from .anchor import anchor_scale, anchor_wanted, first_verdict
-from .engine import CHUNK_SIZE, gatherer, prepare_context, run_chunks
+from .engine import CHUNK_SIZE, KeptSelection, gatherer, prepare_context, run_chunks
 from .methods import get_method
 from .near_lights import PointLights
 from .selection import resolve_selection
@@ -204,7 +204,8 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         sharp specular peaks show the normals' slant to be off (:mod:`pipeline.photometric.anchor`;
         'auto' = the biquadratic method under a narrow light cone). Its outcome is in the
         result's ``options`` (``cone_scale``, 1.0 when unchanged, ``anchor``, ``mismatch_deg``,
-        ``highlight_pixels``); a corrected run costs up to three estimations.
+        ``highlight_pixels``); a corrected run costs a probe on the pixels that peaked and a second fit, both with the
+        first run's selection of observations.
 
     Returns
     -------
@@ -217,16 +218,38 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     flat_images, flat_valid = images.reshape(k, -1), None if valid is None else valid.reshape(k, -1)
     pixels = np.flatnonzero(mask)
     runs = []
+    # the anchor's later runs (other lights) keep the first run's selection (reuse_selection)
+    kept = KeptSelection(pixels, k) if plan.anchor else None
+
+    def reused():
+        return kept if kept is not None and runs and kept.complete() else None
 
     def run(run_lights, on=pixels, context=None):
         gather = gatherer(flat_images, flat_valid, plan.near if plan.near is not None else run_lights)
         return run_chunks(plan.solver, gather, on, mask.shape, plan.options, anchor=plan.anchor,
                           chunk_size=chunk_size, workers=workers, context=context,
-                          progress=progress if on is pixels and not runs else None)
+                          progress=progress if on is pixels and not runs else None,
+                          keep=kept if not runs else None, reuse=reused())
+
+    def later_context(run_lights):
+        # The anchor's runs after the first (other lights) select nothing anew (the first run's
+        # selection is kept): nothing is worth overlapping with their preparation, which takes
+        # every core before their chunks. They keep the first run's single-material verdict
+        # rather than testing again (about a third of a preparation).
+        gather = gatherer(flat_images, flat_valid, run_lights)
+        options = dict(plan.options, threads=workers or os.cpu_count() or 1)
+        check = runs[0].shared.get("shape_check")
+        if check is not None and "fallback" not in check:
+            options["shape_check"] = False
+        if reused() is not None:
+            options["chosen"] = kept.get
+        with single_threaded():
+            context = prepare_context(plan.solver, gather, pixels, options)
+        return dict(context, shape_check=check) if options.get("shape_check") is False and context else context
 
     def solve(run_lights):
         # Progress is reported for the first run only: its total is the mask's pixel count.
-        done = run(run_lights)
+        done = run(run_lights, context=later_context(run_lights) if runs else None)
         runs.append(done)
         return (done.maps, done.shared), done.mismatch
 
@@ -235,17 +258,7 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         # at the first lights are enough, with the shared shape fitted again for these lights (with
         # the first lights' shape the normals barely follow the scale: ball 0.53 -> 0.43 degrees
         # at 1.05 against 0.14 refitted)
-        gather = gatherer(flat_images, flat_valid, run_lights)
-        # nothing runs beside the probe's preparation: it takes every core
-        options = dict(plan.options, threads=workers or os.cpu_count() or 1)
-        check = runs[0].shared.get("shape_check")
-        if check is not None and "fallback" not in check:
-            # the first solve passed the single-material check: the probe keeps its verdict
-            # rather than testing again (about a third of the probe's preparation)
-            options["shape_check"] = False
-        with threadpool_limits(1):
-            context = prepare_context(plan.solver, gather, pixels, options)
-        return run(run_lights, on=np.sort(runs[0].peaks), context=context).mismatch
+        return run(run_lights, on=np.sort(runs[0].peaks), context=later_context(run_lights)).mismatch
 
     options = dict(plan.options)
     if plan.anchor:

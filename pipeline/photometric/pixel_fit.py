@@ -35,7 +35,7 @@ is unavailable or ``PSRIG_NO_JIT`` is set; :func:`fit_pixels_numpy` is the refer
 import numpy as np
 
 from .kernels import fit_pixels_jit, jit_enabled
-from .model import MOMENT_INDEX, X_POWER, Y_POWER, cosines, powers, unit
+from .model import MOMENT_INDEX, cosines, powers, unit
 
 __all__ = ["fit_pixels", "fit_pixels_numpy", "penalty_matrix", "TOL_DEG", "MAX_ITER", "MIN_RIDGE"]
 

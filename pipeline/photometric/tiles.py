@@ -30,12 +30,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from ..atomic import atomic_path
 from ..errors import InputError, StageError
 from ..paths import LIGHTS, TILES_SCRATCH
 from ..session import Session
+from ..threads import single_threaded
 from .anchor import first_verdict
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)
@@ -221,7 +221,7 @@ def run_tile(plan, tile, hook=None):
     phases = phases_of(solve.solver)
     pieces = []
     # one BLAS thread: a Dask worker is one core's worth of work
-    with threadpool_limits(1):
+    with single_threaded():
         for start in range(0, len(local), plan.chunk):
             idx = local[start:start + plan.chunk]
             picked = phases.select(*_finite(gather(idx), plan, r0, r1), context=plan.context, **solve.options)

@@ -113,3 +113,35 @@ def test_anchor_reduces_the_bias_of_a_sub_lambertian_diffuse():
     e_plain = angular_error_deg(plain.normals, normals, mask).mean()
     assert anchored.options["anchor"] == "corrected" and anchored.options["cone_scale"] > 1.0
     assert e_anchored < 0.7 * e_plain, (e_anchored, e_plain)
+
+
+def test_a_correction_keeps_the_first_runs_selection(monkeypatch):
+    # the probe and the corrected run fit the observations the first run selected: the robust
+    # selection runs once per pixel (and once on the shared shape's sample), not once per run
+    from pipeline.photometric import biquadratic, selection
+
+    calls = []
+    robust = selection.select_robust
+    monkeypatch.setattr(selection, "select_robust", lambda obs, *a, **k: calls.append(len(obs)) or robust(obs, *a, **k))
+    images, normals, mask = render(1.05, roughness=0.05)
+    anchored = estimate_normals(images, NARROW, mask, workers=1)
+    assert anchored.options["anchor"] == "corrected"
+    sample = min(biquadratic.SAMPLE_PIXELS, int(mask.sum()))
+    assert sum(calls) == int(mask.sum()) + sample, (sum(calls), int(mask.sum()))
+    # the corrected run reports the single-material verdict of the first
+    assert anchored.options["shape_check"]["one_material"]
+
+
+def test_kept_selection_round_trips_packed_rows():
+    from pipeline.photometric.engine import KeptSelection
+
+    rng = np.random.default_rng(0)
+    pixels = np.sort(rng.choice(10_000, 300, replace=False))
+    weights = rng.random((300, 13)) > 0.5
+    kept = KeptSelection(pixels, 13)
+    kept.put(pixels[:200], weights[:200].astype(float))
+    assert not kept.complete()
+    kept.put(pixels[200:], weights[200:].astype(float))
+    assert kept.complete()
+    some = rng.choice(300, 40, replace=False)
+    np.testing.assert_array_equal(kept.get(pixels[some]), weights[some])

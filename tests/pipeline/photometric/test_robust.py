@@ -118,3 +118,19 @@ def test_warnings_name_the_shares_that_matter():
     failed = normals_warnings({"ok": 10}, 96, {"shape_check": {"ratio": 20.0, "expected": 1.1,
                                                               "fallback": "lambertian prior"}})
     assert any("several materials" in w for w in failed)
+
+
+def test_a_reused_selection_is_refitted_under_the_new_lights():
+    from pipeline.photometric.lambert import lambert_weighted
+    from pipeline.photometric.selection import reuse_selection, select_observations
+
+    normals, mask = sphere_normals(24)
+    lights = hemisphere_lights(40, seed=2, min_elevation_deg=48)
+    obs = cook_torrance_images(normals, mask, lights, roughness=0.3)[:, mask].T.astype(float)
+    base, weights, _ = select_observations(obs, None, lights)
+    other = lights + np.array([0.02, -0.01, 0.0])
+    other /= np.linalg.norm(other, axis=1, keepdims=True)
+    base2, weights2, b2 = reuse_selection(obs, None, other, weights > 0)
+    np.testing.assert_array_equal(base2, base)
+    np.testing.assert_array_equal(weights2, weights)
+    np.testing.assert_allclose(b2, lambert_weighted(obs, other, weights), rtol=1e-12, atol=1e-12)
