@@ -182,8 +182,8 @@ def biquadratic_method(obs, valid, lights, **options):
         fitted without the prior.
     max_iter, tol_deg
         Levenberg-Marquardt steps per pixel at most (:data:`MAX_ITER`, 50) and the turn of the
-        normal in a step below which a pixel stops (:data:`TOL_DEG`, 0.1 degree); a pixel still
-        turning after ``max_iter`` steps is ``not_converged``.
+        normal by its Gauss-Newton step below which a pixel stops (:data:`TOL_DEG`, 0.1
+        degree); a pixel whose step is still larger after ``max_iter`` steps is ``not_converged``.
     specular_anchor : {'auto', True, False}
         Handled by :func:`estimate_normals` (not by this per-chunk function): correct the
         lights' polar angles from sharp specular peaks, see :mod:`pipeline.photometric.anchor`.

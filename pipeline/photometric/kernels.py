@@ -273,6 +273,7 @@ def _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, factor, spar
     row1, row2, z1, z2 = vecs[7], vecs[8], vecs[9], vecs[10]
     mu = _MU0
     nu = 2.0
+    tan2_tol = 1.0 / (cos_tol * cos_tol) - 1.0
     xs, cs, xt, ct = work[0], work[1], work[2], work[3]
     for it in range(max_iter):
         _tangents(n, t1, t2)
@@ -285,6 +286,13 @@ def _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, factor, spar
             a00 -= row1[i] * z1[i]
             a01 -= row1[i] * z2[i]
             a11 -= row2[i] * z2[i]
+        # converged when the undamped (Gauss-Newton) step would turn the normal by less than the
+        # tolerance: the step to the reduced problem's minimum, whatever the damping; not tried
+        det0 = a00 * a11 - a01 * a01
+        if det0 > 0.0:
+            e0, e1 = (a11 * g0 - a01 * g1) / det0, (a00 * g1 - a01 * g0) / det0
+            if e0 * e0 + e1 * e1 <= tan2_tol:
+                return 0
         d0, d1 = mu * a00 + 1e-300, mu * a11 + 1e-300
         det = (a00 + d0) * (a11 + d1) - a01 * a01
         s0 = ((a11 + d1) * g0 - a01 * g1) / det
@@ -307,7 +315,6 @@ def _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, factor, spar
             _cholesky_substitute(spare, rhs, c_try, 9)
             cost_try = _cost(soa, xt, ct, m, c_try, pen)
         if math.isfinite(cost_try) and cost_try <= cost:
-            turned = n[0] * n_try[0] + n[1] * n_try[1] + n[2] * n_try[2]
             for i in range(3):
                 n[i] = n_try[i]
             for i in range(9):
@@ -319,8 +326,6 @@ def _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, factor, spar
             cost = cost_try
             mu = max(mu * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12)
             nu = 2.0
-            if turned >= cos_tol:
-                return 0
         else:
             mu *= nu
             nu *= 2.0

@@ -8,7 +8,8 @@ the error from 5.33 to 4.97 degrees between its 3rd and 100th iteration. Here bo
 Levenberg-Marquardt problem in 11 unknowns per pixel: a rotation of the normal in its tangent
 plane (2) and the 9 coefficients c, with the data term sum_k w (obs - R(x, y) s)^2, R = the
 biquadratic with coefficients c (albedo included), so it converges in a few steps and a pixel
-stops when its normal turns by less than ``tol_deg``.
+stops when its Gauss-Newton step would turn the normal by less than ``tol_deg`` (that step
+estimates the distance to the minimum whatever the damping; it is not tried).
 
 c is linear, so it is eliminated (variable projection): every iterate holds the best c for
 its normal, each step is the damped Gauss-Newton step of the reduced problem in the normal's
@@ -39,7 +40,7 @@ from .model import MOMENT_INDEX, cosines, powers, unit
 
 __all__ = ["fit_pixels", "fit_pixels_numpy", "penalty_matrix", "TOL_DEG", "MAX_ITER", "MIN_RIDGE"]
 
-#: a pixel stops when its normal turns by less than this in a step (degrees)
+#: a pixel stops when its Gauss-Newton step would turn the normal by less than this (degrees)
 TOL_DEG = 0.1
 #: Levenberg-Marquardt steps at most (accepted or not); measured: DiLiGenT ball, cat and reading
 #: pixels stop after 3-6
@@ -89,7 +90,8 @@ def fit_pixels(obs, weights, b, lights, h, y, prior=None, shape_prior=0.0, max_i
     rss : ndarray (N,)
         Weighted residual sum of squares (the data term).
     moving : ndarray (N,) bool
-        Pixels whose normal still turned by ``tol_deg`` or more in their last step.
+        Pixels whose Gauss-Newton step would still turn the normal by ``tol_deg`` or more
+        after ``max_iter`` steps.
     dof : ndarray (N,)
         Effective number of parameters: 2 for the normal plus the trace of the coefficients'
         hat matrix (9 without a prior, about 1 with a strong one); 11, their most, for pixels
@@ -116,19 +118,26 @@ def fit_pixels_numpy(obs, weights, b, lights, h, y, penalty, max_iter=MAX_ITER, 
     cost = _cost(obs, weights, n, c, lights, h, y5, pen)
     mu, nu = np.full(len(obs), _MU0), np.full(len(obs), 2.0)
     active = np.flatnonzero(np.isfinite(cost))
-    cos_tol = np.cos(np.radians(tol_deg))
+    tan2_tol = np.tan(np.radians(tol_deg)) ** 2
     for _ in range(max_iter):
         if active.size == 0:
             break
         sub = _rows(active, lights, h, y5)
-        step, t1, t2, predicted = _lm_step(obs[active], weights[active], n[active], c[active], *sub, pen[active],
-                                           mu[active])
+        step, t1, t2, predicted, newton = _lm_step(obs[active], weights[active], n[active], c[active], *sub,
+                                                   pen[active], mu[active])
+        # converged when the undamped (Gauss-Newton) step would turn the normal by less than the
+        # tolerance: the step to the reduced problem's minimum, whatever the damping; not tried
+        small = np.sum(newton**2, axis=1) <= tan2_tol
+        active = active[~small]
+        step, t1, t2, predicted = step[~small], t1[~small], t2[~small], predicted[~small]
+        if active.size == 0:
+            break
+        sub = _rows(active, lights, h, y5)
         n_try = unit(n[active] + step[:, :1] * t1 + step[:, 1:2] * t2)
         # variable projection: c is linear, so the trial takes the best c for the trial normal
         c_try = _best_coefficients(obs[active], weights[active], n_try, *sub, pen[active])
         cost_try = _cost(obs[active], weights[active], n_try, c_try, *sub, pen[active])
         better = np.isfinite(cost_try) & (cost_try <= cost[active])
-        turned = np.sum(n_try * n[active], axis=1)
         gain = (cost[active] - cost_try) / np.maximum(predicted, 1e-300)
         keep = active[better]
         n[keep], c[keep], cost[keep] = n_try[better], c_try[better], cost_try[better]
@@ -136,7 +145,7 @@ def fit_pixels_numpy(obs, weights, b, lights, h, y, penalty, max_iter=MAX_ITER, 
         shrink = np.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
         mu[active] = np.where(better, np.maximum(mu[active] * shrink, 1e-12), mu[active] * nu[active])
         nu[active] = np.where(better, 2.0, nu[active] * 2.0)
-        done = (better & (turned >= cos_tol)) | (mu[active] > _MU_MAX)
+        done = mu[active] > _MU_MAX
         active = active[~done]
     moving = np.zeros(len(obs), bool)
     moving[active] = True
@@ -212,7 +221,8 @@ def _tangents(n):
 def _lm_step(obs, weights, n, c, lights, h, y5, pen, mu):
     """The damped Gauss-Newton step (N, 2) of the normal's tangent angles with c eliminated (the
     Schur complement of the joint system; c is the best c for n, so its gradient is zero), the
-    tangents, and the decrease the damped model predicts (N,)."""
+    tangents, the decrease the damped model predicts (N,), and the undamped step (N, 2) (inf
+    where the reduced system is singular)."""
     x, s, r, slope = _surface(n, c, lights, h, y5)
     resid = obs - r * s
     t1, t2 = _tangents(n)
@@ -229,6 +239,11 @@ def _lm_step(obs, weights, n, c, lights, h, y5, pen, mu):
     with np.errstate(invalid="ignore"):
         z = np.linalg.solve(_coefficient_matrix(weights, s, x, y5) + pen, a_nc.transpose(0, 2, 1))
     schur = a_nn - a_nc @ z
+    det0 = schur[:, 0, 0] * schur[:, 1, 1] - schur[:, 0, 1] ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        newton = np.stack([(schur[:, 1, 1] * grad[:, 0] - schur[:, 0, 1] * grad[:, 1]) / det0,
+                           (schur[:, 0, 0] * grad[:, 1] - schur[:, 0, 1] * grad[:, 0]) / det0], 1)
+    newton[~(det0 > 0)] = np.inf
     d0, d1 = mu * schur[:, 0, 0] + 1e-300, mu * schur[:, 1, 1] + 1e-300
     a00, a01, a11 = schur[:, 0, 0] + d0, schur[:, 0, 1], schur[:, 1, 1] + d1
     det = a00 * a11 - a01 * a01
@@ -237,7 +252,7 @@ def _lm_step(obs, weights, n, c, lights, h, y5, pen, mu):
     step[~(det > 0)] = np.nan
     # the decrease the damped quadratic model predicts: step . (grad + damping step)
     predicted = step[:, 0] * (grad[:, 0] + d0 * step[:, 0]) + step[:, 1] * (grad[:, 1] + d1 * step[:, 1])
-    return step, t1, t2, predicted
+    return step, t1, t2, predicted, newton
 
 
 def _results(obs, weights, n, c, lights, h, y5, pen, moving, dof_below):

@@ -34,14 +34,17 @@ def test_per_pixel_lights_give_the_shared_lights_result(narrow, shape_prior):
 
 
 def test_the_joint_fit_converges_where_alternating_creeps(narrow):
-    """Stopped on the normal's turn, the joint fit ends where many more steps end."""
+    """Stopped when its Gauss-Newton step would turn the normal by less than ``tol_deg``, the
+    joint fit ends within that angle of where many more steps end."""
     obs, weights, b, lights, h, y = narrow
     prior = np.array([[1.0, 0.1, 0.0], [0.2, 0.0, 0.05], [0.0, 0.0, 0.01]])
-    short = fit_pixels(obs, weights, b, lights, h, y, prior=prior, shape_prior=0.01)
     long = fit_pixels(obs, weights, b, lights, h, y, prior=prior, shape_prior=0.01, max_iter=400, tol_deg=1e-5)
-    stopped = ~short[3]
-    assert stopped.mean() > 0.99
-    assert np.percentile(row_angles_deg(short[0][stopped], long[0][stopped]), 99) < 0.05
+    for tol in (0.1, 0.02):
+        short = fit_pixels(obs, weights, b, lights, h, y, prior=prior, shape_prior=0.01, tol_deg=tol)
+        stopped = ~short[3]
+        assert stopped.mean() > 0.99
+        off = row_angles_deg(short[0][stopped], long[0][stopped])
+        assert np.percentile(off, 99) < tol and off.mean() < tol / 3, (tol, np.percentile(off, 99), off.mean())
     # the prior leaves the albedo free: shapes have mean 1 over the used observations
     assert np.all(np.isfinite(short[1]))
 
