@@ -22,8 +22,8 @@ import numpy as np
 from scipy import ndimage
 
 from ..errors import InputError
+from ..jit import single_threaded
 from ..registry import Registry
-from ..threads import single_threaded
 from .bilateral import solve_bilateral, solve_smooth
 from .grid import build_problem
 

@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..threads import single_threaded
+from ..jit import single_threaded
 from .anchor import highlight_mismatch
 from .methods import STATUS
 from .near_lights import PointLights, observations_at

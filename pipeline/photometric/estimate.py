@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from ..threads import single_threaded
+from ..jit import single_threaded
 from .anchor import anchor_scale, anchor_wanted, first_verdict
 from .engine import CHUNK_SIZE, KeptSelection, gatherer, prepare_context, run_chunks
 from .methods import get_method

@@ -33,9 +33,9 @@ import numpy as np
 
 from ..atomic import atomic_path
 from ..errors import InputError, StageError
+from ..jit import single_threaded
 from ..paths import LIGHTS, TILES_SCRATCH
 from ..session import Session
-from ..threads import single_threaded
 from .anchor import first_verdict
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)
