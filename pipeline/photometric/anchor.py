@@ -218,7 +218,7 @@ def anchor_scale(solve, lights, min_pixels=MIN_PIXELS, max_change=MAX_CHANGE, st
     median mismatch must lie within ``max_change`` of 1, and the mismatch must fall as the
     scale rises (the sign a global error gives). Then a second solve at the root
     (:func:`pipeline.photometric.estimate_normals` keeps the first solve's selection of
-    observations for the probe and that solve).
+    observations for that solve).
     """
     result, mismatch = solve(lights)
     info = first_verdict(mismatch, min_pixels, tol)

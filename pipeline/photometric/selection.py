@@ -283,8 +283,8 @@ def select_observations(obs, valid, lights, t_low=None, t_shadow=T_SHADOW, rejec
 def reuse_selection(obs, valid, lights, chosen, t_shadow=T_SHADOW, **_):
     """:func:`select_observations`' result for a selection already made under other lights.
 
-    The specular anchor's runs at corrected lights (:func:`pipeline.photometric.estimate_normals`)
-    keep the observations their first run chose: which observations are shadows, highlights or
+    The specular anchor's run at corrected lights (:func:`pipeline.photometric.estimate_normals`)
+    keeps the observations its first run chose: which observations are shadows, highlights or
     interreflections does not depend on a few percent of the lights' polar angles. Measured on
     DiLiGenT ball at the corrected scale (1.053): 3 % of the selected observations differ from
     a fresh selection, and the mean error is 0.83 degrees with the kept selection, 0.85 fresh.
