@@ -42,7 +42,7 @@ STATUS_COLOURS = np.full((256, 3), 128, np.uint8)
 STATUS_COLOURS[list(STATUS_NAMES)] = [STATUS_PALETTE.get(STATUS_NAMES[c], (128, 128, 128)) for c in STATUS_NAMES]
 #: what :mod:`pipeline.photometric.anchor` reports in the result's options, kept in the stage record
 ANCHOR_KEYS = ("cone_scale", "anchor", "mismatch_deg", "highlight_pixels", "probe_mismatch_deg",
-               "final_mismatch_deg")
+               "final_mismatch_deg", "cone_scale_range")
 
 
 @dataclass
@@ -318,11 +318,16 @@ def normals_summary(record):
     counts = (record.get("status_counts") or {}).items()
     shares = ", ".join(f"{name} {share_text(count, pixels)}" for name, count in counts if count)
     anchor = record.get("specular_anchor") or {}
-    cone = f"; lights' cone scaled by {anchor['cone_scale']:.3f} (specular anchor)" \
+    cone = f"; lights' cone scaled by {anchor['cone_scale']:.3f} (specular anchor{_range_text(anchor)})" \
         if anchor.get("anchor") == "corrected" else ""
     left_out = record.get("lights_left_out") or []
     flagged = f"; lights left out (flagged in {LIGHTS}): {', '.join(map(str, left_out))}" if left_out else ""
     return f"{record.get('pixels', 0)} pixels: {shares}{cone}{flagged}"
+
+
+def _range_text(anchor):
+    spread = anchor.get("cone_scale_range")
+    return f"; {spread[0]:.3f}-{spread[1]:.3f} over resampled highlights" if spread else ""
 
 
 def _write_outputs(session, result, channels):

@@ -36,6 +36,8 @@ def test_anchor_recovers_a_miscalibrated_cone(true_scale):
     plain = estimate_normals(images, NARROW, mask, specular_anchor=False)
     assert anchored.options["anchor"] == "corrected"
     assert abs(anchored.options["cone_scale"] - true_scale) < 0.01, anchored.options
+    low, high = anchored.options["cone_scale_range"]
+    assert low <= anchored.options["cone_scale"] <= high and high - low < 0.01, anchored.options
     e_anchored = angular_error_deg(anchored.normals, normals, mask).mean()
     e_plain = angular_error_deg(plain.normals, normals, mask).mean()
     assert e_anchored < 0.4 < 1.0 < e_plain, (e_anchored, e_plain)
@@ -148,3 +150,16 @@ def test_kept_selection_round_trips_packed_rows():
     assert kept.complete()
     some = rng.choice(300, 40, replace=False)
     np.testing.assert_array_equal(kept.get(pixels[some]), weights[some])
+
+
+def test_root_range_follows_the_spread_of_the_highlights():
+    from pipeline.photometric.anchor import root_range
+
+    rng = np.random.default_rng(0)
+    # mismatch +0.5 at the nominal lights, 0 at 1.05: the root is 1.05, however wide the spread
+    tight = root_range(0.5 + 0.1 * rng.normal(size=200), 0.1 * rng.normal(size=200), 1.05)
+    wide = root_range(0.5 + 1.5 * rng.normal(size=200), 1.5 * rng.normal(size=200), 1.05)
+    assert abs(np.mean(tight) - 1.05) < 0.005 and tight[1] - tight[0] < 0.01, tight
+    assert wide[0] < 1.05 < wide[1] and wide[1] - wide[0] > 3 * (tight[1] - tight[0]), (tight, wide)
+    # a mismatch that does not fall as the scale rises has no root: the range's far end
+    assert root_range(np.full(100, 0.5), np.full(100, 0.6), 1.05) == [1.1, 1.1]

@@ -18,3 +18,12 @@ def test_a_status_that_is_present_never_reads_as_absent():
     line = normals_summary({"pixels": 94365, "status_counts": {"ok": 94289, "not_converged": 26,
                                                                "lambert_fallback": 50}})
     assert "not_converged <0.1%" in line and "lambert_fallback 0.1%" in line
+
+
+def test_a_correction_says_how_well_the_highlights_fix_it():
+    record = {"pixels": 100, "status_counts": {"ok": 100},
+              "specular_anchor": {"anchor": "corrected", "cone_scale": 1.0545, "cone_scale_range": [1.05, 1.0832]}}
+    line = normals_summary(record)
+    assert "lights' cone scaled by 1.054 (specular anchor; 1.050-1.083 over resampled highlights)" in line
+    del record["specular_anchor"]["cone_scale_range"]   # records written before the range was kept
+    assert "lights' cone scaled by 1.054 (specular anchor)" in normals_summary(record)
