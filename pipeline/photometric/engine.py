@@ -27,9 +27,9 @@ from .anchor import highlight_mismatch
 from .methods import STATUS
 from .near_lights import PointLights, observations_at
 
-__all__ = ["Context", "ChunkRun", "OnePhase", "KeptSelection", "phases_of", "gatherer", "prepare_context", "solve_chunk",
-           "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS", "CHUNK_KEYS",
-           "NO_NORMAL"]
+__all__ = ["Context", "ChunkRun", "OnePhase", "KeptSelection", "phases_of", "gatherer", "prepare_context",
+           "solve_chunk", "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS",
+           "CHUNK_KEYS", "NO_NORMAL"]
 
 #: statuses without a normal (zero in the maps)
 NO_NORMAL = (STATUS["too_few"], STATUS["shadowed"], STATUS["ill_posed"])
