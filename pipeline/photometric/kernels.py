@@ -266,7 +266,9 @@ def _iterate(soa, m, n, c, pen, cost, max_iter, cos_tol, work, mom, factor, spar
     complement on the normal), the trial takes the best c for the trial normal, and the damping
     follows the gain ratio (Nielsen's rule). ``factor`` holds the Cholesky factor of
     data + pen at n on entry (``spare`` (9, 9) is scratch); work[0], work[1] hold the geometry
-    (n . h, n . l) of the current n on entry and exit. Returns 1 while the normal still turns.
+    (n . h, n . l) of the current n on entry and exit. Returns 0 once the undamped step would
+    turn the normal by less than the tolerance (or the damping runs out), 1 if it still would
+    after ``max_iter`` steps.
     See :func:`pipeline.photometric.pixel_fit.fit_pixels_numpy`, which does the same in numpy.
     """
     rhs, n_try, c_try, t1, t2 = vecs[2], vecs[3, :3], vecs[4], vecs[5, :3], vecs[6, :3]
