@@ -185,11 +185,12 @@ class ChannelSums:
     def __init__(self, sums=None):
         self.sums, self.grey = sums, False
 
-    def add(self, linear, gain, saturated):
-        if linear.shape[2] < 2:
+    def add(self, scaled, saturated):
+        """Add one frame (H, W, C) with its intensities divided out; its ``saturated`` (H, W)
+        pixels are zeroed in place (the frame is the caller's no longer)."""
+        if scaled.shape[2] < 2:
             self.grey = True
             return
-        scaled = linear * (1.0 / gain).astype(np.float32)
         scaled[saturated] = 0.0
         self.sums = scaled if self.sums is None else np.add(self.sums, scaled, out=self.sums)
 
@@ -204,10 +205,11 @@ def load_object_stack(session, frames, lights, channels=None):
         gain = gain if gain.size == linear.shape[2] else np.full(linear.shape[2], gain.mean())
         if (gain <= 0).any():
             raise StageError(f"{session.path(LIGHTS)}: light {frame['light']} has a non-positive intensity")
-        images.append((linear / gain.astype(np.float32)).mean(axis=2))
+        scaled = linear / gain.astype(np.float32)
+        images.append(scaled.mean(axis=2))
         valid.append(~read_mask(session.saturation_path(frame)))
         if channels is not None:
-            channels.add(linear, gain, ~valid[-1])
+            channels.add(scaled, ~valid[-1])   # after the grey mean: it zeroes the saturated pixels
         if images[-1].shape != images[0].shape:
             raise StageError(f"{session.linear_path(frame)}: size {images[-1].shape} differs from "
                              f"{session.linear_path(frames[0])}'s {images[0].shape}")
