@@ -56,7 +56,7 @@ class Biquadratic:
         shared shape is used, and ``shape_check`` (:func:`single_material_check`), which holds
         ``fallback`` when the object failed it and its pixels get the Lambertian prior instead.
         ``threads`` > 1 splits the sample's selection and the shape's terms over that many
-        threads (for a preparation that nothing else runs beside: the anchor's probe).
+        threads (for a preparation that nothing else runs beside: the anchor's later runs).
         ``chosen(idx)`` (optional) gives the observations (n, K) bool an earlier run selected
         at flat pixels ``idx``: the sample keeps them (:func:`reuse_selection`).
         """

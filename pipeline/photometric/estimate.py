@@ -221,17 +221,14 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     # the anchor's corrected run keeps the first run's selection (reuse_selection)
     kept = KeptSelection(pixels, k) if plan.anchor else None
 
-    def reused(keep_selection):
-        return kept if keep_selection and kept is not None and runs and kept.complete() else None
-
-    def run(run_lights, on=pixels, context=None, keep_selection=True):
+    def run(run_lights, on=pixels, context=None, reuse=None):
         gather = gatherer(flat_images, flat_valid, plan.near if plan.near is not None else run_lights)
         return run_chunks(plan.solver, gather, on, mask.shape, plan.options, anchor=plan.anchor,
                           chunk_size=chunk_size, workers=workers, context=context,
                           progress=progress if on is pixels and not runs else None,
-                          keep=kept if not runs else None, reuse=reused(keep_selection))
+                          keep=kept if not runs else None, reuse=reuse)
 
-    def later_context(run_lights, keep_selection=True):
+    def later_context(run_lights, reuse=None):
         # The anchor's runs after the first (other lights) prepare before their chunks, on every
         # core: the corrected run selects nothing anew (the first run's selection is kept), the
         # probe's chunks are few. Both keep the first run's single-material verdict rather than
@@ -241,15 +238,17 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         check = runs[0].shared.get("shape_check")
         if check is not None and "fallback" not in check:
             options["shape_check"] = False
-        if reused(keep_selection) is not None:
-            options["chosen"] = kept.get
+        if reuse is not None:
+            options["chosen"] = reuse.get
         with single_threaded():
             context = prepare_context(plan.solver, gather, pixels, options)
         return dict(context, shape_check=check) if options.get("shape_check") is False and context else context
 
     def solve(run_lights):
         # Progress is reported for the first run only: its total is the mask's pixel count.
-        done = run(run_lights, context=later_context(run_lights) if runs else None)
+        # a later run (the corrected one) keeps the first run's selection, when it made one
+        reuse = kept if runs and kept is not None and kept.complete() else None
+        done = run(run_lights, context=later_context(run_lights, reuse) if runs else None, reuse=reuse)
         runs.append(done)
         return (done.maps, done.shared), done.mismatch
 
@@ -260,8 +259,7 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         # at 1.05 against 0.14 refitted). It selects afresh: its median mismatch is the secant's
         # slope, and the kept selection moved it (through the shared shape's sample) by 0.2
         # degrees on ball's session, its root 1.050 -> 1.035 and the error 0.87 -> 1.06 degrees
-        return run(run_lights, on=np.sort(runs[0].peaks), context=later_context(run_lights, keep_selection=False),
-                   keep_selection=False).mismatch
+        return run(run_lights, on=np.sort(runs[0].peaks), context=later_context(run_lights)).mismatch
 
     options = dict(plan.options)
     if plan.anchor:
