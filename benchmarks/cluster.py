@@ -30,7 +30,7 @@ import numpy as np
 
 from pipeline.photometric import SCRATCH, TilePlan, plan_solve, run_tile
 from pipeline.photometric.engine import CHUNK_SIZE
-from pipeline.photometric.tiles import pixel_tiles, tile_context
+from pipeline.photometric.tiles import frame_check, pixel_tiles, tile_context
 
 BLOCK_ROWS = 64
 
@@ -133,9 +133,9 @@ def main(argv=None):
         stack_gb = args.lights * height * width * 5 / 1e9
         print(f"stack {height} x {width} x {args.lights} lights ({stack_gb:.1f} GB on disk, float32 + valid) "
               f"ready in {time.perf_counter() - start:.0f} s")
-        solve = plan_solve("biquadratic", lights, {})
-        options = solve.options
         mask = np.load(folder / "mask.npy")
+        solve = frame_check(folder, mask, plan_solve("biquadratic", lights, {}))
+        options = solve.options
         start = time.perf_counter()
         context = tile_context(folder, mask, solve)
         print(f"shared context fitted once in {time.perf_counter() - start:.1f} s "

@@ -29,8 +29,18 @@ def register(sub):
                         help="correct the lights' polar angles where sharp specular peaks show the "
                              "normals' slant to be off (auto, the default: biquadratic under a narrow "
                              "light cone)")
+    parser.add_argument("--frame-gains", choices=("auto", "on", "off"), default="auto",
+                        help="check each frame's brightness against its light's intensity, from the "
+                             "images: auto (the default) rescales the frames that are more than 16 %% "
+                             "off the others, on rescales every frame by its measured gain, off trusts "
+                             "the intensities")
     parser.add_argument("--force", action="store_true", help="run even when the stage is up to date")
     parser.set_defaults(func=run)
+
+
+def _switch(value):
+    """auto / on / off as the stage's option: None (its default), True, False."""
+    return {"auto": None, "on": True, "off": False}[value]
 
 
 def run(args):
@@ -44,7 +54,7 @@ def run(args):
     session = open_session(args.session, args)
     record = normals_session(session, method=args.method, force=args.force, t_low=t_low,
                              lights_model=args.lights_model, near_depth=args.near_depth == "on",
-                             specular_anchor={"auto": None, "on": True, "off": False}[args.specular_anchor],
+                             specular_anchor=_switch(args.specular_anchor), frame_gains=_switch(args.frame_gains),
                              t_shadow=args.t_shadow, reject_k=args.reject_k, shape_prior=args.shape_prior)
     if record is None:
         print(f"{session.root}: normals up to date (use --force to rerun)")

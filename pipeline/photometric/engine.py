@@ -138,7 +138,7 @@ class Context:
         return {} if self._future is None else self._future.result()
 
 
-def gatherer(flat_images, flat_valid, lights, offset=0):
+def gatherer(flat_images, flat_valid, lights, offset=0, gains=None):
     """A function ``gather(idx)`` returning the solver's view of pixels ``idx``.
 
     Parameters
@@ -149,6 +149,8 @@ def gatherer(flat_images, flat_valid, lights, offset=0):
     lights : ndarray (K, 3) or (K, H, W, 3), or PointLights
     offset : int
         Index in the whole image of ``flat_images``' first pixel (a tile's first row).
+    gains : ndarray (K,), optional
+        Each frame's gain (:mod:`pipeline.photometric.frame_gains`): observations are divided by it.
 
     Returns
     -------
@@ -160,6 +162,8 @@ def gatherer(flat_images, flat_valid, lights, offset=0):
 
     def gather(idx):
         obs = flat_images[:, idx].T.astype(np.float64)
+        if gains is not None:
+            obs /= gains
         obs_valid = None if flat_valid is None else flat_valid[:, idx].T
         if flat_lights is not None:
             return obs, obs_valid, np.ascontiguousarray(flat_lights[:, idx + offset].transpose(1, 0, 2))

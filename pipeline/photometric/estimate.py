@@ -13,7 +13,7 @@ makes the same plan and the same result from its tiles.
 
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -21,11 +21,13 @@ from ..errors import InputError
 from ..jit import single_threaded
 from .anchor import anchor_scale, anchor_wanted, first_verdict
 from .engine import CHUNK_SIZE, KeptSelection, gatherer, prepare_context, run_chunks
+from .frame_gains import check_frames
 from .methods import get_method
 from .near_lights import PointLights
 from .selection import resolve_selection
 
-__all__ = ["estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_lights", "result_from_maps"]
+__all__ = ["estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_plan_frames", "check_lights",
+           "result_from_maps"]
 
 
 @dataclass
@@ -86,6 +88,10 @@ class SolvePlan:
     anchor : bool
         Whether to anchor the lights on specular peaks; ``insist`` whether the caller asked for
         it (``specular_anchor=True``), which also corrects after the darkest-fraction fallback.
+    frame_gains : {'auto', True, False}
+        How the frames' brightness is checked (:mod:`pipeline.photometric.frame_gains`);
+        ``gains`` (K,) the frames' gains the solve divides by (None: as given) and
+        ``gain_check`` the check's record, both set by :func:`check_plan_frames`.
     """
 
     method: str
@@ -95,6 +101,9 @@ class SolvePlan:
     options: dict = field(default_factory=dict)
     anchor: bool = False
     insist: bool = False
+    frame_gains: object = "auto"
+    gains: np.ndarray = None
+    gain_check: dict = None
 
 
 def check_lights(lights, count, shape):
@@ -127,6 +136,10 @@ def check_lights(lights, count, shape):
     lights = lights / np.linalg.norm(lights, axis=-1, keepdims=True)
     _check_rank(lights if lights.ndim == 2 else lights.reshape(count, -1, 3).mean(axis=1))
     return lights
+
+
+def _solver_lights(plan):
+    return plan.near if plan.near is not None else plan.lights
 
 
 def _check_rank(shared):
@@ -169,8 +182,20 @@ def plan_solve(method, lights, options):
     directions = near.central_directions if near is not None else lights
     options = resolve_selection(directions, options)
     specular_anchor = options.pop("specular_anchor", "auto")
+    frame_gains = options.pop("frame_gains", "auto")
     anchor = anchor_wanted(method, specular_anchor, options, directions, near)
-    return SolvePlan(method, solver, directions, near, options, anchor, specular_anchor is True)
+    return SolvePlan(method, solver, directions, near, options, anchor, specular_anchor is True, frame_gains)
+
+
+def check_plan_frames(plan, gather, pixels):
+    """``plan`` with its frames' gains measured (:func:`pipeline.photometric.frame_gains.check_frames`
+    on ``gather``, the images as given, over the object's ``pixels``) and decided."""
+    # near lights: an error of the object's depth changes each frame's falloff at every pixel alike,
+    # which the check would read as gains (measured: 8 of 16 frames "rescaled" by 0.74 on a plane
+    # 30 % nearer than the spheres'); their gains are checked only when asked for
+    mode = False if plan.near is not None and plan.frame_gains == "auto" else plan.frame_gains
+    check = check_frames(gather, pixels, plan.options, mode=mode)
+    return replace(plan, gains=check.applied(), gain_check=check.record())
 
 
 def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=None, chunk_size=CHUNK_SIZE,
@@ -217,12 +242,14 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     k = images.shape[0]
     flat_images, flat_valid = images.reshape(k, -1), None if valid is None else valid.reshape(k, -1)
     pixels = np.flatnonzero(mask)
+    plan = check_plan_frames(plan, gatherer(flat_images, flat_valid, _solver_lights(plan)), pixels)
     runs = []
     # the anchor's corrected run keeps the first run's selection (reuse_selection)
     kept = KeptSelection(pixels, k) if plan.anchor else None
 
     def run(run_lights, on=pixels, context=None, reuse=None):
-        gather = gatherer(flat_images, flat_valid, plan.near if plan.near is not None else run_lights)
+        gather = gatherer(flat_images, flat_valid, plan.near if plan.near is not None else run_lights,
+                          gains=plan.gains)
         return run_chunks(plan.solver, gather, on, mask.shape, plan.options, anchor=plan.anchor,
                           chunk_size=chunk_size, workers=workers, context=context,
                           progress=progress if on is pixels and not runs else None,
@@ -233,7 +260,7 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         # core: the corrected run selects nothing anew (the first run's selection is kept), the
         # probe's chunks are few. Both keep the first run's single-material verdict rather than
         # testing again (about a third of a preparation).
-        gather = gatherer(flat_images, flat_valid, run_lights)
+        gather = gatherer(flat_images, flat_valid, run_lights, gains=plan.gains)
         options = dict(plan.options, threads=workers or os.cpu_count() or 1)
         check = runs[0].shared.get("shape_check")
         if check is not None and "fallback" not in check:
@@ -261,7 +288,7 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         # degrees on ball's session, its root 1.050 -> 1.035 and the error 0.87 -> 1.06 degrees
         return run(run_lights, on=np.sort(runs[0].peaks), context=later_context(run_lights)).mismatch
 
-    options = dict(plan.options)
+    options = dict(plan.options, frame_check=plan.gain_check)
     if plan.anchor:
         (out, shared), info = _anchored(solve, plan.lights, insist=plan.insist, probe=probe)
         options.update(info)

@@ -27,7 +27,8 @@ from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
 
 __all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack",
-           "object_mask", "light_model", "stage_params", "model_record", "normals_warnings", "normals_summary", "STAGE",
+           "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "normals_warnings",
+           "normals_summary", "STAGE",
            "LIGHT_MODELS", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS", "WARN_SHARES"]
 
 STAGE = "normals"
@@ -276,7 +277,9 @@ def record_normals(session, run, result, channels, near_depth=None):
         extra["near_depth"] = near_depth
     extra.update(model_record(result.shared_shape, result.options.get("shape_check"), result.options))
     extra["selection"] = plain({k: result.options[k] for k in SELECTION_KEYS if k in result.options})
-    extra["warnings"] = normals_warnings(counts, len(run.frames), result.options)
+    extra.update(frame_gains_record(result.options.get("frame_check"), run.frames))
+    transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
+    extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer)
     return session.record_stage(STAGE, run.params, run.inputs, outputs, seconds=time.time() - run.started,
                                 **extra)
 
@@ -300,9 +303,22 @@ _WARNINGS = {
 }
 
 
-def normals_warnings(counts, lights, options):
+def frame_gains_record(check, frames):
+    """The stage record's ``frame_gains`` entry ({} without a check): the check's verdict and
+    largest deviation (:mod:`pipeline.photometric.frame_gains`), the rescaled frames by id."""
+    if not check:
+        return {}
+    check = dict(check)
+    if "rescaled" in check:
+        check["rescaled"] = {frames[int(k)]["id"]: gain for k, gain in check["rescaled"].items()}
+    return {"frame_gains": plain(check)}
+
+
+def normals_warnings(counts, lights, options, frame_gains=None, transfer=()):
     """What a user should know of a normals run (list of str): statuses over their share of the
-    object's pixels (:data:`WARN_SHARES`), and a failed single-material check."""
+    object's pixels (:data:`WARN_SHARES`), a failed single-material check, and the frames
+    rescaled to the others' brightness (``frame_gains``, :func:`frame_gains_record`'s entry;
+    ``transfer`` the decode record's transfer functions, which a wrong one explains too)."""
     pixels = max(sum(counts.values()), 1)
     warnings = [_WARNINGS[name].format(share=f"{counts[name] / pixels:.0%}", count=counts[name], lights=lights)
                 for name, limit in WARN_SHARES.items() if counts.get(name) and counts[name] / pixels > limit]
@@ -311,7 +327,36 @@ def normals_warnings(counts, lights, options):
         warnings.append(f"one shared shape does not fit the object (residual ratio {check['ratio']:g}, "
                         f"{check['expected']:g} expected for one material): several materials? Each pixel "
                         "was fitted with the Lambertian prior instead")
+    warnings += _gain_warnings(frame_gains or {}, lights, transfer)
     return warnings
+
+
+def _gain_warnings(frame_gains, lights, transfer=()):
+    rescaled = frame_gains.get("rescaled") or {}
+    if not rescaled:
+        return []
+    gamma = _transfer_hint(transfer)
+    if frame_gains.get("uncalibrated"):
+        low, high = min(rescaled.values()), max(rescaled.values())
+        return [f"{len(rescaled)} of {lights} frames are not as bright as the lights' intensities say "
+                f"({low:.2f}x to {high:.2f}x the others): were the intensities given ({LIGHTS})? The frames "
+                "were rescaled to the others, but a brightness that changes steadily across the lights "
+                "looks like a tilt of the whole object: calibrate the intensities, the normals may be off "
+                f"by degrees{gamma}"]
+    listed = ", ".join(f"{name} ({gain:.2f}x)" for name, gain in list(rescaled.items())[:6])
+    more = f" and {len(rescaled) - 6} more" if len(rescaled) > 6 else ""
+    return [f"frame(s) {listed}{more}: brighter or darker than their lights' intensities in {LIGHTS} say, "
+            "measured against the other frames; rescaled (a light that dimmed or misfired, a changed "
+            f"exposure, or a wrong intensity?){gamma}"]
+
+
+def _transfer_hint(transfer):
+    """A wrong transfer function bends each frame by its brightness, which reads as gains too
+    (DiLiGenT ball's linear frames decoded as sRGB: 23 of 96 frames rescaled): the decode
+    record's non-linear curves are named."""
+    curves = [str(name) for name in transfer if not str(name).lower().startswith("linear")]
+    return f"; decode used {' / '.join(curves)}: if the frames hold linear values, decode with --gamma linear" \
+        if curves else ""
 
 
 def normals_summary(record):
@@ -324,7 +369,9 @@ def normals_summary(record):
         if anchor.get("anchor") == "corrected" else ""
     left_out = record.get("lights_left_out") or []
     flagged = f"; lights left out (flagged in {LIGHTS}): {', '.join(map(str, left_out))}" if left_out else ""
-    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{flagged}"
+    rescaled = (record.get("frame_gains") or {}).get("rescaled") or {}
+    gains = f"; {len(rescaled)} frame(s) rescaled to the others' brightness" if rescaled else ""
+    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{flagged}"
 
 
 def _range_text(anchor):

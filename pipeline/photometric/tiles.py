@@ -39,11 +39,11 @@ from ..session import Session
 from .anchor import first_verdict
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)
-from .estimate import check_lights, plan_solve, result_from_maps
+from .estimate import check_lights, check_plan_frames, plan_solve, result_from_maps
 from .stage import STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
 
 __all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
-           "tile_context", "SCRATCH", "WHOLE_IMAGE"]
+           "tile_context", "frame_check", "SCRATCH", "WHOLE_IMAGE"]
 
 SCRATCH = TILES_SCRATCH
 #: the scratch file of the frames' colour sums (:class:`pipeline.photometric.stage.ChannelSums`),
@@ -168,7 +168,7 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=CH
         lights = check_lights(run.solver_lights(mask.shape), len(run.frames), mask.shape)
     except InputError as exc:
         raise InputError(f"{session.path(LIGHTS)}: the {len(run.frames)} used lights: {exc}") from None
-    solve = plan_solve(run.method, lights, run.options)
+    solve = frame_check(folder, mask, plan_solve(run.method, lights, run.options))
     return TilePlan(str(session.root), solve, tile_context(folder, mask, solve), mask.shape,
                     pixel_tiles(mask, tile_pixels, chunk), chunk, run)
 
@@ -179,15 +179,26 @@ def _load_frame(session, frame, lights, channels):
     return images[0], valid[0]
 
 
+def frame_check(folder, mask, solve):
+    """``solve`` with its frames' gains checked on the whole mask, as
+    :func:`pipeline.photometric.estimate_normals` checks them (the memory-mapped stack as given)."""
+    return check_plan_frames(solve, _stack_gatherer(folder, solve, None), np.flatnonzero(mask))
+
+
 def tile_context(folder, mask, solve):
     """The method's shared context from the whole mask, gathered from the memory-mapped stack."""
     if not hasattr(solve.solver, "prepare"):
         return {}
+    return prepare_context(solve.solver, _stack_gatherer(folder, solve, solve.gains), np.flatnonzero(mask),
+                           solve.options)
+
+
+def _stack_gatherer(folder, solve, gains):
     stack = np.load(Path(folder) / "stack.npy", mmap_mode="r")
     valid = np.load(Path(folder) / "valid.npy", mmap_mode="r")
     k = stack.shape[0]
-    gather = gatherer(stack.reshape(k, -1), valid.reshape(k, -1), _solver_lights(solve))
-    return prepare_context(solve.solver, gather, np.flatnonzero(mask), solve.options)
+    return gatherer(stack.reshape(k, -1), valid.reshape(k, -1), _solver_lights(solve),
+                    gains=gains)
 
 
 def _solver_lights(solve):
@@ -215,7 +226,7 @@ def run_tile(plan, tile, hook=None):
     mask = np.load(plan.scratch("mask.npy"), mmap_mode="r")
     k, width = stack.shape[0], stack.shape[2]
     gather = gatherer(stack[:, r0:r1].reshape(k, -1), valid[:, r0:r1].reshape(k, -1), _solver_lights(plan.solve),
-                      offset=r0 * width)
+                      offset=r0 * width, gains=plan.solve.gains)
     local = np.flatnonzero(mask[r0:r1])[skip:skip + count]
     solve = plan.solve
     phases = phases_of(solve.solver)
@@ -274,7 +285,7 @@ def assemble_normals(plan, tile_paths=None):
             scatter_chunk(out, tile["idx"], chunk)
             if plan.anchor:
                 mismatch.append(tile["mismatch"])
-    options = dict(plan.solve.options)
+    options = dict(plan.solve.options, frame_check=plan.solve.gain_check)
     if plan.anchor:
         verdict = first_verdict(np.concatenate(mismatch) if mismatch else np.zeros(0))
         if verdict["anchor"] == "to correct":

@@ -41,8 +41,9 @@ def ring_lights(count):
                      np.cos(polar)], -1)
 
 
-def make_session(folder, name, size):
-    """A glossy hemisphere under 16 lights, imported as 16-bit PNGs with a light file and mask."""
+def make_session(folder, name, size, dim=None):
+    """A glossy hemisphere under 16 lights, imported as 16-bit PNGs with a light file and mask;
+    ``dim`` {frame index: factor} makes frames darker than their light file says."""
     normals, mask = sphere(size)
     dirs = ring_lights(LIGHTS)
     src = folder / f"{name}_src"
@@ -52,7 +53,7 @@ def make_session(folder, name, size):
     for k, light in enumerate(dirs):
         diffuse = np.clip(normals @ light, 0, None)
         gloss = 0.3 * np.clip(normals @ half[k], 0, None) ** 20 * (diffuse > 0)
-        image = np.clip((0.6 * diffuse + gloss) * mask, 0, 1)
+        image = np.clip((0.6 * diffuse + gloss) * mask * (dim or {}).get(k, 1.0), 0, 1)
         write_image(src / f"img{k + 1:02d}.png", np.repeat(image[..., None], 3, axis=2))
     (src / "lights.txt").write_text(f"{LIGHTS}\n" + "".join(f"{x} {y} {z}\n" for x, y, z in dirs))
     write_mask(src / "mask.png", mask)
@@ -286,6 +287,20 @@ def test_tiles_in_process_match_the_serial_stage_and_reruns_are_idempotent(tmp_p
     assert len(normals) == 10 and all(got[rel] == want[rel] for rel in normals)  # observations.png, lit.png too
     assert cluster_tiles.plan_normals(Session.open(tiled), {}) is None  # up to date
     assert not (Path(tiled) / cluster_tiles.SCRATCH).exists()
+
+
+def test_tiles_rescale_a_dim_frame_as_the_serial_stage_does(tmp_path):
+    reference, tiled = (make_session(tmp_path, name, 64, dim={5: 0.6}) for name in ("a", "b"))
+    for root in (reference, tiled):
+        runner.run_session(root, stop="calibrate")
+    normals_session(Session.open(reference), show_progress=False)
+    plan = cluster_tiles.plan_normals(Session.open(tiled), {"method": None}, tile_pixels=1)
+    assert plan.solve.gains is not None and abs(plan.solve.gains[5] - 0.6) < 0.03
+    cluster_tiles.assemble_normals(plan, [cluster_tiles.run_tile(plan, tile) for tile in plan.tiles])
+    got, want = session_files(tiled), session_files(reference)
+    assert all(got[rel] == want[rel] for rel in want if rel.startswith("normals/"))
+    records = [Session.open(root).stage("normals")["frame_gains"] for root in (reference, tiled)]
+    assert records[0] == records[1] and len(records[0]["rescaled"]) == 1
 
 
 def test_missing_tile_is_an_error_naming_it(tmp_path):

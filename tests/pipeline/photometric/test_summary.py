@@ -27,3 +27,22 @@ def test_a_correction_says_how_well_the_highlights_fix_it():
     assert "lights' cone scaled by 1.054 (specular anchor; 1.050-1.083 over resampled highlights)" in line
     del record["specular_anchor"]["cone_scale_range"]   # records written before the range was kept
     assert "lights' cone scaled by 1.054 (specular anchor)" in normals_summary(record)
+
+
+def test_rescaled_frames_are_named_and_a_decode_curve_is_suspected_too():
+    from pipeline.photometric.stage import normals_warnings
+
+    one = {"verdict": "rescaled", "rescaled": {"object_004": 0.61}, "uncalibrated": False}
+    warnings = normals_warnings({"ok": 100}, 12, {}, one, ["linear (assumed: 16-bit file without colour metadata)"])
+    assert len(warnings) == 1 and warnings[0].startswith("frame(s) object_004 (0.61x): ")
+    assert "--gamma" not in warnings[0]
+    warnings = normals_warnings({"ok": 100}, 12, {}, one, ["sRGB (assumed: 8-bit file without colour metadata)"])
+    assert "decode used sRGB (assumed: 8-bit file without colour metadata)" in warnings[0]
+    assert "--gamma linear" in warnings[0]
+    many = {"verdict": "rescaled", "rescaled": {f"f{k}": 0.5 + k / 10 for k in range(8)}, "uncalibrated": True}
+    (text,) = normals_warnings({"ok": 100}, 12, {}, many)
+    assert text.startswith("8 of 12 frames are not as bright") and "0.50x to 1.20x" in text
+    assert "were the intensities given" in text
+    assert normals_warnings({"ok": 100}, 12, {}, {"verdict": "consistent", "max_deviation": 0.02}) == []
+    line = normals_summary({"pixels": 100, "status_counts": {"ok": 100}, "frame_gains": one})
+    assert line.endswith("; 1 frame(s) rescaled to the others' brightness")
