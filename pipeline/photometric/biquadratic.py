@@ -6,9 +6,9 @@ A chunk runs in two phases. :meth:`Biquadratic.select` picks each pixel's observ
 each pixel's normal and 9 coefficients jointly (:mod:`pipeline.photometric.pixel_fit`), its
 shape pulled toward a multiple of the object's shared shape, which
 :meth:`Biquadratic.prepare` fits once per image on a pixel sample
-(:mod:`pipeline.photometric.shared_shape`). When the object fails the single-material check on
-the automatic narrow-cone path, every pixel falls back to the paper's darkest-fraction rule
-without the prior. The rules and the measurements behind them: docs/photometric-stereo.md.
+(:mod:`pipeline.photometric.shared_shape`). When the object fails the single-material check,
+every pixel is pulled toward a constant reflectance (:data:`LAMBERT_SHAPE`) instead, with the
+same selection. The rules and the measurements behind them: docs/photometric-stereo.md.
 """
 
 import concurrent.futures as futures
@@ -175,11 +175,9 @@ def biquadratic_method(obs, valid, lights, **options):
     shape_prior : float
         Strength of the pull toward the object's shared shape (default 0.01; 0 = the paper's
         independent per-pixel fit).
-    fallback_t_low : float, optional
-        Set by :func:`resolve_selection` on the automatic narrow-cone path (default
-        :data:`FALLBACK_T_LOW`; None turns the fallback off): when the object fails the
-        single-material check, every pixel keeps its darkest ``fallback_t_low`` fraction and is
-        fitted without the prior.
+    shape_check : bool
+        False: use the shared shape without the single-material check (which otherwise, when the
+        object fails it, pulls every pixel toward :data:`LAMBERT_SHAPE` instead).
     max_iter, tol_deg
         Levenberg-Marquardt steps per pixel at most (:data:`MAX_ITER`, 50) and the turn of the
         normal by its Gauss-Newton step below which a pixel stops (:data:`TOL_DEG`, 0.1

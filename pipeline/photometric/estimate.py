@@ -87,7 +87,8 @@ class SolvePlan:
         The method's options after :func:`pipeline.photometric.selection.resolve_selection`.
     anchor : bool
         Whether to anchor the lights on specular peaks; ``insist`` whether the caller asked for
-        it (``specular_anchor=True``), which also corrects after the darkest-fraction fallback.
+        it (``specular_anchor=True``), which also corrects an object that failed the single-material
+        check.
     frame_gains : {'auto', True, False}
         How the frames' brightness is checked (:mod:`pipeline.photometric.frame_gains`);
         ``gains`` (K,) the frames' gains the solve divides by (None: as given) and
@@ -230,7 +231,12 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         'auto' = the biquadratic method under a narrow light cone). Its outcome is in the
         result's ``options`` (``cone_scale``, 1.0 when unchanged, ``anchor``, ``mismatch_deg``,
         ``highlight_pixels``); a corrected run costs a probe on the pixels that peaked and a
-        second fit of every pixel on the first run's selection of observations.
+        second fit of every pixel on the first run's selection of observations. And
+        ``frame_gains`` ('auto', True or False): check each frame's brightness against the
+        others before the fit and rescale the frames that depart
+        (:mod:`pipeline.photometric.frame_gains`; 'auto' = the frames more than 16 % and more
+        than their own spread off, True = every frame, False = none; near lights only when
+        True); its outcome is the result's ``options["frame_check"]``.
 
     Returns
     -------
