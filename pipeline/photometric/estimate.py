@@ -24,6 +24,7 @@ from .engine import CHUNK_SIZE, KeptSelection, gatherer, prepare_context, run_ch
 from .frame_gains import check_frames
 from .methods import get_method
 from .near_lights import PointLights
+from .outline import outline_check
 from .selection import resolve_selection
 
 __all__ = ["estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_plan_frames", "check_lights",
@@ -308,9 +309,10 @@ def result_from_maps(maps, mask, method, options, shared, seconds=0.0):
 
     ``shared`` holds the context's ``shape_paper`` and ``shape_check``: the check is reported in
     ``options["shape_check"]``, and after its fallback the options say that the shared shape was
-    not used.
+    not used. ``options["outline_check"]`` is :func:`pipeline.photometric.outline.outline_check`
+    of the normals.
     """
-    options = dict(options)
+    options = dict(options, outline_check=outline_check(maps["normals"], mask))
     if shared.get("shape_check") is not None:
         options["shape_check"] = shared["shape_check"]
         if "fallback" in shared["shape_check"]:

@@ -25,6 +25,7 @@ from .estimate import estimate_normals
 from .methods import STATUS, STATUS_NAMES, STATUS_PALETTE, share_text
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
+from .outline import SEEN_WHOLE, mirrored_axes
 
 __all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack",
            "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "normals_warnings",
@@ -278,6 +279,8 @@ def record_normals(session, run, result, channels, near_depth=None):
     extra.update(model_record(result.shared_shape, result.options.get("shape_check"), result.options))
     extra["selection"] = plain({k: result.options[k] for k in SELECTION_KEYS if k in result.options})
     extra.update(frame_gains_record(result.options.get("frame_check"), run.frames))
+    if result.options.get("outline_check"):
+        extra["outline_check"] = plain(result.options["outline_check"])
     transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
     extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer)
     return session.record_stage(STAGE, run.params, run.inputs, outputs, seconds=time.time() - run.started,
@@ -328,7 +331,21 @@ def normals_warnings(counts, lights, options, frame_gains=None, transfer=()):
                         f"{check['expected']:g} expected for one material): several materials? Each pixel "
                         "was fitted with the Lambertian prior instead")
     warnings += _gain_warnings(frame_gains or {}, lights, transfer)
+    warnings += _outline_warnings(options.get("outline_check"))
     return warnings
+
+
+def _outline_warnings(check):
+    mirrored = mirrored_axes(check)
+    if not mirrored:
+        return []
+    axes = " and ".join(mirrored)
+    shares = ", ".join(f"{check[axis]:.0%} in {axis}" for axis in mirrored)
+    return [f"the normals at the object's outline point into the mask along {axes}: {shares} of the outline "
+            f"pixels agree with it, against {SEEN_WHOLE} on objects seen whole. The light file's {axes} "
+            f"{'axes probably point' if len(mirrored) > 1 else 'axis probably points'} the other way "
+            "(psrig's camera frame: x right, y up toward the top of the image, z toward the camera): negate "
+            f"{axes} in the light file and import again, unless the mask is not the object's silhouette"]
 
 
 def _gain_warnings(frame_gains, lights, transfer=()):
