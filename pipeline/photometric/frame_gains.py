@@ -25,14 +25,16 @@ Measurements behind the defaults: docs/photometric-stereo.md (frame gains).
 """
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from ..errors import InputError
+from .frame_directions import check_directions
 from .methods import shading
 from .selection import select_observations
 
-__all__ = ["FrameCheck", "check_frames", "measure_gains", "GAIN_TOL", "GAIN_SAMPLE", "GAIN_ROUNDS", "MIN_EVIDENCE",
+__all__ = ["FrameCheck", "GainMeasure", "check_frames", "measure_gains", "GAIN_TOL", "GAIN_SAMPLE", "GAIN_ROUNDS", "MIN_EVIDENCE",
            "UNCALIBRATED_SHARE", "SIGNIFICANCE", "FRAME_GAIN_MODES"]
 
 #: frames whose brightness departs from the others' by more than this (log units: 16 %) are
@@ -76,6 +78,9 @@ class FrameCheck:
     spread : ndarray (K,)
         The spread of each frame's log ratios in the first measurement (robust standard
         deviation over the pixels).
+    directions : dict or None
+        :func:`pipeline.photometric.frame_directions.check_directions` on the same sample (the
+        frames rescaled), for lights shared by all pixels.
     """
 
     gains: np.ndarray
@@ -83,6 +88,7 @@ class FrameCheck:
     rescaled: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     verdict: str = "consistent"
     spread: np.ndarray = None
+    directions: dict = None
 
     def applied(self):
         """The gains the solve divides by, or None when every frame is left as given."""
@@ -96,14 +102,29 @@ class FrameCheck:
         if self.rescaled.size:
             out["rescaled"] = {int(k): round(float(self.gains[k]), 4) for k in self.rescaled}
             out["uncalibrated"] = bool(self.rescaled.size > UNCALIBRATED_SHARE * len(self.gains))
+        if self.directions is not None:
+            out["directions"] = self.directions
         return out
+
+
+class GainMeasure(NamedTuple):
+    """What :func:`measure_gains` returns: ``step`` (K,) the frames' log gains relative to their
+    median, ``spread`` (K,) the robust standard deviation of each frame's log ratios (both NaN
+    where not judged), and the fit they came from: ``scaled`` (N, K) the observations divided by
+    the gains, ``base`` (N, K) their non-shadowed ones, ``b`` (N, 3) the Lambertian fit."""
+
+    step: np.ndarray
+    spread: np.ndarray
+    scaled: np.ndarray
+    base: np.ndarray
+    b: np.ndarray
 
 
 def measure_gains(obs, valid, lights, gains, options, min_evidence=MIN_EVIDENCE):
     """One measurement of the frames' log gains (K,) relative to their median, with the
     frames divided by ``gains`` (K,) first, and the spread (K,) of each frame's log ratios over
     the pixels (a robust standard deviation); NaN for frames lit at fewer than
-    ``min_evidence`` of the pixels.
+    ``min_evidence`` of the pixels. Returns a :class:`GainMeasure`.
 
     Parameters
     ----------
@@ -135,7 +156,7 @@ def measure_gains(obs, valid, lights, gains, options, min_evidence=MIN_EVIDENCE)
     step, spread = np.where(judged, step, np.nan), np.where(judged, (high - low) / 1.349, np.nan)
     if judged.any():
         step -= np.median(step[judged])
-    return step, spread
+    return GainMeasure(step, spread, scaled, base, b)
 
 
 def _column_quantiles(values):
@@ -186,22 +207,24 @@ def check_frames(gather, pixels, options, mode="auto", sample=GAIN_SAMPLE, tol=G
     gains = np.ones(count)
     if mode is False or count < 4:
         return FrameCheck(gains, np.full(count, np.nan), verdict="not checked", spread=np.full(count, np.nan))
-    deviation, spread = measure_gains(obs, valid, lights, gains, options)
+    measured = measure_gains(obs, valid, lights, gains, options)
+    deviation, spread = measured.step, measured.spread
     chosen = np.isfinite(deviation) if mode is True else _departs(deviation, spread, tol, significance)
-    if not chosen.any():
-        return FrameCheck(gains, deviation, spread=spread)
     step = deviation
-    for _ in range(rounds):
+    for _ in range(rounds if chosen.any() else 0):
         # the frames left as given are the reference: their median step is the offset
         kept = ~chosen & np.isfinite(step)
         offset = np.median(step[kept]) if kept.any() else 0.0
         gains[chosen] *= np.exp(np.nan_to_num(step[chosen] - offset))
-        step, now = measure_gains(obs, valid, lights, gains, options)
+        measured = measure_gains(obs, valid, lights, gains, options)
+        step = measured.step
         if mode == "auto":
-            chosen |= _departs(step, now, tol, significance)   # a frame the rescaled ones had hidden
+            chosen |= _departs(step, measured.spread, tol, significance)   # one the rescaled ones had hidden
     if mode is True:
         gains /= np.exp(np.median(np.log(gains)))
-    return FrameCheck(gains, deviation, np.flatnonzero(chosen), "estimated" if mode is True else "rescaled", spread)
+    verdict = "consistent" if not chosen.any() else "estimated" if mode is True else "rescaled"
+    directions = check_directions(measured.scaled, measured.base, measured.b, lights) if lights.ndim == 2 else None
+    return FrameCheck(gains, deviation, np.flatnonzero(chosen), verdict, spread, directions)
 
 
 def _departs(deviation, spread, tol, significance):

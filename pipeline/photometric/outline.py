@@ -49,6 +49,8 @@ def outline_check(normals, mask, band=OUTLINE_BAND, min_side=MIN_SIDE_PIXELS):
         than ``min_side`` such pixels face either way (one edge of the image, a thin mask).
     """
     mask = np.asarray(mask, bool)
+    if min(mask.shape) < 2 * band + 1:   # no outline to speak of (and no gradient on 1 x 1)
+        return {"pixels": 0, "x": None, "y": None}
     ring = mask & ~ndimage.binary_erosion(mask, iterations=band, border_value=1)
     # out of the mask: down the slope of the blurred mask; rows run down, the camera's y up
     rows, cols = np.gradient(ndimage.gaussian_filter(mask.astype(np.float32), 2.0))

@@ -25,6 +25,7 @@ from .estimate import estimate_normals
 from .methods import STATUS, STATUS_NAMES, STATUS_PALETTE, share_text
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
+from .frame_gains import UNCALIBRATED_SHARE
 from .outline import SEEN_WHOLE, mirrored_axes
 
 __all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack",
@@ -312,8 +313,17 @@ def frame_gains_record(check, frames):
     if not check:
         return {}
     check = dict(check)
+
+    def name(index):
+        return frames[int(index)]["id"]
+
     if "rescaled" in check:
-        check["rescaled"] = {frames[int(k)]["id"]: gain for k, gain in check["rescaled"].items()}
+        check["rescaled"] = {name(k): gain for k, gain in check["rescaled"].items()}
+    if check.get("directions"):
+        directions = dict(check["directions"])
+        directions["off"] = {name(k): v for k, v in directions["off"].items()}
+        directions["swapped"] = [[name(a), name(b)] for a, b in directions["swapped"]]
+        check["directions"] = directions
     return {"frame_gains": plain(check)}
 
 
@@ -331,6 +341,7 @@ def normals_warnings(counts, lights, options, frame_gains=None, transfer=()):
                         f"{check['expected']:g} expected for one material): several materials? Each pixel "
                         "was fitted with the Lambertian prior instead")
     warnings += _gain_warnings(frame_gains or {}, lights, transfer)
+    warnings += _direction_warnings((frame_gains or {}).get("directions") or {}, lights)
     warnings += _outline_warnings(options.get("outline_check"))
     return warnings
 
@@ -365,6 +376,26 @@ def _gain_warnings(frame_gains, lights, transfer=()):
     return [f"frame(s) {listed}{more}: brighter or darker than their lights' intensities in {LIGHTS} say, "
             "measured against the other frames; rescaled (a light that dimmed or misfired, a changed "
             f"exposure, or a wrong intensity?){gamma}"]
+
+
+def _direction_warnings(directions, lights):
+    off, swapped = directions.get("off") or {}, directions.get("swapped") or []
+    if not off:
+        return []
+    if len(off) > UNCALIBRATED_SHARE * lights:
+        return [f"{len(off)} of {lights} frames' lights are not where {LIGHTS} puts them, by the images (up to "
+                f"{max(v['angle'] for v in off.values()):.0f} degrees off): do the light file's order and the "
+                "frames' order match?"]
+    said = [f"frames {a} and {b} look swapped: by the images each one's light is where {LIGHTS} puts the "
+            "other's (are the frames and the light file in the same order?)" for a, b in swapped]
+    paired = {name for pair in swapped for name in pair}
+    alone = {name: v for name, v in off.items() if name not in paired}
+    if alone:
+        listed = ", ".join(f"{name} ({v['angle']:.0f} degrees, from ({', '.join(f'{c:.2f}' for c in v['estimated'])}))"
+                           for name, v in alone.items())
+        said.append(f"frame(s) {listed}: by the images their light is not where {LIGHTS} puts it (a wrong "
+                    "order, a light that moved, or a bad calibration?)")
+    return said
 
 
 def _transfer_hint(transfer):

@@ -140,3 +140,35 @@ def test_the_stage_names_the_rescaled_frame_and_can_be_told_to_trust_the_intensi
     record = Session.open(root).stage("normals")
     assert record["params"]["frame_gains"] is False and record["frame_gains"]["verdict"] == "not checked"
     assert not any("rescaled" in w for w in record["warnings"])
+
+
+@pytest.mark.parametrize("lights", [NARROW, DOME], ids=["narrow", "dome"])
+def test_two_swapped_lights_are_found_and_right_ones_are_not(lights):
+    images, _, mask = scene(lights)
+    right = check(images, lights, mask).directions
+    assert right["off"] == {} and right["swapped"] == [] and right["max_angle"] < 2.0
+    swapped = lights.copy()
+    swapped[[1, 6]] = swapped[[6, 1]]
+    found = check(images, swapped, mask).directions
+    assert set(found["off"]) == {1, 6} and found["swapped"] == [[1, 6]]
+    # each estimate is the frame's true light
+    for k, true in ((1, lights[1]), (6, lights[6])):
+        assert np.degrees(np.arccos(min(np.dot(found["off"][k]["estimated"], true), 1.0))) < 1.0
+
+
+def test_a_moved_light_is_named_with_where_the_images_put_it():
+    from pipeline.photometric.stage import normals_warnings
+
+    images, _, mask = scene(NARROW)
+    moved = NARROW.copy()
+    moved[9] = NARROW[9] + np.array([0.25, 0.0, 0.0])
+    moved[9] /= np.linalg.norm(moved[9])
+    record = estimate_normals(images, moved, mask).options["frame_check"]
+    off = record["directions"]["off"]
+    assert list(off) == [9] and record["directions"]["swapped"] == []
+    frames = {"directions": {"off": {"f09": off[9]}, "swapped": []}}
+    (warning,) = normals_warnings({"ok": 1}, len(NARROW), {}, frames)
+    assert warning.startswith("frame(s) f09 (") and "not where calibration/lights.yaml puts it" in warning
+    pair = {"directions": {"off": {"a": off[9], "b": off[9]}, "swapped": [["a", "b"]]}}
+    (warning,) = normals_warnings({"ok": 1}, len(NARROW), {}, pair)
+    assert warning.startswith("frames a and b look swapped")

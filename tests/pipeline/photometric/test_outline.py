@@ -57,3 +57,7 @@ def test_the_stage_records_the_outline_and_warns_of_a_light_file_with_y_down(tmp
     record = normals_session(Session.open(root), show_progress=False)
     assert record["outline_check"]["y"] < 0.1 and record["outline_check"]["x"] > 0.9
     assert any("point into the mask along y" in w for w in record["warnings"])
+
+
+def test_an_image_too_small_for_an_outline_gives_no_verdict():
+    assert outline_check(np.zeros((1, 1, 3)), np.ones((1, 1), bool)) == {"pixels": 0, "x": None, "y": None}
