@@ -15,6 +15,9 @@ Where things live:
   :mod:`.kernels`); :mod:`.shared_shape` the object's one shape and the
   single-material check; :mod:`.selection` which observations each pixel uses;
 - :mod:`.anchor`: the light cone corrected on specular peaks;
+- :mod:`.frame_gains`, :mod:`.frame_directions`: each frame's brightness and light direction
+  checked against the images before the fit; :mod:`.outline` the normals checked against the
+  mask's outline after it (a light file with an axis the other way);
 - :mod:`.near_lights`, :mod:`.near_depth`: near point lights, at the integrated depth;
 - :mod:`.stage`: the ``normals`` stage of a session; :mod:`.tiles`: the same stage in pixel
   tiles for Dask.
