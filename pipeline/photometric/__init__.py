@@ -19,8 +19,8 @@ Where things live:
   checked against the images before the fit; :mod:`.outline` the normals checked against the
   mask's outline after it (a light file with an axis the other way);
 - :mod:`.near_lights`, :mod:`.near_depth`: near point lights, at the integrated depth;
-- :mod:`.stage`: the ``normals`` stage of a session; :mod:`.tiles`: the same stage in pixel
-  tiles for Dask.
+- :mod:`.stage`: the ``normals`` stage of a session, :mod:`.summary` what it says of a run;
+  :mod:`.tiles`: the same stage in pixel tiles for Dask.
 
 The methods and the measurements behind the defaults: docs/photometric-stereo.md.
 """
@@ -31,7 +31,8 @@ from .estimate import PhotometricResult, SolvePlan, check_lights, estimate_norma
 from .methods import METHODS, STATUS, STATUS_NAMES, get_method, register_model_methods, share_text
 from .near_lights import PointLights, observations_at
 from .selection import light_spread_deg, resolve_selection
-from .stage import normals_session, normals_summary, normals_warnings
+from .stage import normals_session
+from .summary import normals_summary, normals_warnings
 from .tiles import SCRATCH, WHOLE_IMAGE, TilePlan, assemble_normals, plan_normals, run_tile
 
 register_model_methods()

@@ -157,7 +157,7 @@ def test_two_swapped_lights_are_found_and_right_ones_are_not(lights):
 
 
 def test_a_moved_light_is_named_with_where_the_images_put_it():
-    from pipeline.photometric.stage import normals_warnings
+    from pipeline.photometric.summary import normals_warnings
 
     images, _, mask = scene(NARROW)
     moved = NARROW.copy()

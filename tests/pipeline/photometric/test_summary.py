@@ -1,6 +1,6 @@
 """The one line psrig run / psrig normals print per session."""
 
-from pipeline.photometric.stage import normals_summary
+from pipeline.photometric.summary import normals_summary
 
 
 def test_summary_line_has_shares_and_the_lights_left_out():
@@ -30,7 +30,7 @@ def test_a_correction_says_how_well_the_highlights_fix_it():
 
 
 def test_rescaled_frames_are_named_and_a_decode_curve_is_suspected_too():
-    from pipeline.photometric.stage import normals_warnings
+    from pipeline.photometric.summary import normals_warnings
 
     one = {"verdict": "rescaled", "rescaled": {"object_004": 0.61}, "uncalibrated": False}
     warnings = normals_warnings({"ok": 100}, 12, {}, one, ["linear (assumed: 16-bit file without colour metadata)"])

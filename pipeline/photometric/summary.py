@@ -1,0 +1,131 @@
+"""What the normals stage says of a run: its warnings and its one line.
+
+:func:`normals_warnings` turns a run's status counts and its checks (the single-material check,
+the frames' gains and light directions of :mod:`pipeline.photometric.frame_gains`, the outline
+of :mod:`pipeline.photometric.outline`) into the warnings the stage records; the report, ``psrig
+normals`` and ``psrig run`` show them. :func:`normals_summary` is the line printed per session.
+"""
+
+from ..paths import LIGHTS
+from .frame_gains import UNCALIBRATED_SHARE
+from .methods import share_text
+from .outline import SEEN_WHOLE, mirrored_axes
+
+__all__ = ["normals_warnings", "normals_summary", "WARN_SHARES"]
+
+#: shares of the object's pixels above which the summary warns, per status
+WARN_SHARES = {"lambert_fallback": 0.2, "shared_shape": 0.2, "not_converged": 0.05, "too_few": 0.1,
+               "shadowed": 0.1, "ill_posed": 0.0}
+_WARNINGS = {
+    "lambert_fallback": "{share} of pixels fell back to Lambert: too few observations for the biquadratic "
+                        "model ({lights} lights)",
+    "shared_shape": "{share} of pixels were fitted with the object's shared shape alone: too few observations "
+                    "for the full model ({lights} lights)",
+    "not_converged": "{share} of pixels did not converge (their normal still turned after the last step)",
+    "too_few": "{share} of pixels had fewer than 3 usable observations: no normal",
+    "shadowed": "{share} of pixels were dark in every frame: no normal",
+    "ill_posed": "{count} pixel(s) have no normal: their observations determine none facing the camera "
+                 "(lights too close to coplanar there, or lit only indirectly)",
+}
+
+
+
+
+def normals_warnings(counts, lights, options, frame_gains=None, transfer=()):
+    """What a user should know of a normals run (list of str): statuses over their share of the
+    object's pixels (:data:`WARN_SHARES`), a failed single-material check, and the frames
+    rescaled to the others' brightness (``frame_gains``, :func:`frame_gains_record`'s entry;
+    ``transfer`` the decode record's transfer functions, which a wrong one explains too)."""
+    pixels = max(sum(counts.values()), 1)
+    warnings = [_WARNINGS[name].format(share=f"{counts[name] / pixels:.0%}", count=counts[name], lights=lights)
+                for name, limit in WARN_SHARES.items() if counts.get(name) and counts[name] / pixels > limit]
+    check = options.get("shape_check") or {}
+    if "fallback" in check:
+        warnings.append(f"one shared shape does not fit the object (residual ratio {check['ratio']:g}, "
+                        f"{check['expected']:g} expected for one material): several materials? Each pixel "
+                        "was fitted with the Lambertian prior instead")
+    warnings += _gain_warnings(frame_gains or {}, lights, transfer)
+    warnings += _direction_warnings((frame_gains or {}).get("directions") or {}, lights)
+    warnings += _outline_warnings(options.get("outline_check"))
+    return warnings
+
+
+def _outline_warnings(check):
+    mirrored = mirrored_axes(check)
+    if not mirrored:
+        return []
+    axes = " and ".join(mirrored)
+    shares = ", ".join(f"{check[axis]:.0%} in {axis}" for axis in mirrored)
+    return [f"the normals at the object's outline point into the mask along {axes}: {shares} of the outline "
+            f"pixels agree with it, against {SEEN_WHOLE} on objects seen whole. The light file's {axes} "
+            f"{'axes probably point' if len(mirrored) > 1 else 'axis probably points'} the other way "
+            "(psrig's camera frame: x right, y up toward the top of the image, z toward the camera): negate "
+            f"{axes} in the light file and import again, unless the mask is not the object's silhouette"]
+
+
+def _gain_warnings(frame_gains, lights, transfer=()):
+    rescaled = frame_gains.get("rescaled") or {}
+    if not rescaled:
+        return []
+    gamma = _transfer_hint(transfer)
+    if frame_gains.get("uncalibrated"):
+        low, high = min(rescaled.values()), max(rescaled.values())
+        return [f"{len(rescaled)} of {lights} frames are not as bright as the lights' intensities say "
+                f"({low:.2f}x to {high:.2f}x the others): were the intensities given ({LIGHTS})? The frames "
+                "were rescaled to the others, but a brightness that changes steadily across the lights "
+                "looks like a tilt of the whole object: calibrate the intensities, the normals may be off "
+                f"by degrees{gamma}"]
+    listed = ", ".join(f"{name} ({gain:.2f}x)" for name, gain in list(rescaled.items())[:6])
+    more = f" and {len(rescaled) - 6} more" if len(rescaled) > 6 else ""
+    return [f"frame(s) {listed}{more}: brighter or darker than their lights' intensities in {LIGHTS} say, "
+            "measured against the other frames; rescaled (a light that dimmed or misfired, a changed "
+            f"exposure, or a wrong intensity?){gamma}"]
+
+
+def _direction_warnings(directions, lights):
+    off, swapped = directions.get("off") or {}, directions.get("swapped") or []
+    if not off:
+        return []
+    if len(off) > UNCALIBRATED_SHARE * lights:
+        return [f"{len(off)} of {lights} frames' lights are not where {LIGHTS} puts them, by the images (up to "
+                f"{max(v['angle'] for v in off.values()):.0f} degrees off): do the light file's order and the "
+                "frames' order match?"]
+    said = [f"frames {a} and {b} look swapped: by the images each one's light is where {LIGHTS} puts the "
+            "other's (are the frames and the light file in the same order?)" for a, b in swapped]
+    paired = {name for pair in swapped for name in pair}
+    alone = {name: v for name, v in off.items() if name not in paired}
+    if alone:
+        listed = ", ".join(f"{name} ({v['angle']:.0f} degrees, from ({', '.join(f'{c:.2f}' for c in v['estimated'])}))"
+                           for name, v in alone.items())
+        said.append(f"frame(s) {listed}: by the images their light is not where {LIGHTS} puts it (a wrong "
+                    "order, a light that moved, or a bad calibration?)")
+    return said
+
+
+def _transfer_hint(transfer):
+    """A wrong transfer function bends each frame by its brightness, which reads as gains too
+    (DiLiGenT ball's linear frames decoded as sRGB: 23 of 96 frames rescaled): the decode
+    record's non-linear curves are named."""
+    curves = [str(name) for name in transfer if not str(name).lower().startswith("linear")]
+    return f"; decode used {' / '.join(curves)}: if the frames hold linear values, decode with --gamma linear" \
+        if curves else ""
+
+
+def normals_summary(record):
+    """One line of a normals record: pixels, the status shares, the light correction."""
+    pixels = max(record.get("pixels") or 0, 1)
+    counts = (record.get("status_counts") or {}).items()
+    shares = ", ".join(f"{name} {share_text(count, pixels)}" for name, count in counts if count)
+    anchor = record.get("specular_anchor") or {}
+    cone = f"; lights' cone scaled by {anchor['cone_scale']:.3f} (specular anchor{_range_text(anchor)})" \
+        if anchor.get("anchor") == "corrected" else ""
+    left_out = record.get("lights_left_out") or []
+    flagged = f"; lights left out (flagged in {LIGHTS}): {', '.join(map(str, left_out))}" if left_out else ""
+    rescaled = (record.get("frame_gains") or {}).get("rescaled") or {}
+    gains = f"; {len(rescaled)} frame(s) rescaled to the others' brightness" if rescaled else ""
+    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{flagged}"
+
+
+def _range_text(anchor):
+    spread = anchor.get("cone_scale_range")
+    return f"; {spread[0]:.3f}-{spread[1]:.3f} over resampled highlights" if spread else ""
