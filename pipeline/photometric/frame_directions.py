@@ -77,9 +77,11 @@ def check_directions(obs, base, b, lights, min_evidence=MIN_DIRECTION_EVIDENCE, 
     Returns
     -------
     dict
-        ``max_angle`` (degrees, over the judged frames), ``off`` {frame index: {"angle",
-        "estimated" (3,)}} for the frames whose light is off (see the module docstring), and
-        ``swapped`` [[a, b], ...], off frames each of whose estimate is the other's direction.
+        ``max_angle`` (degrees, over the judged frames); ``off`` {frame index: {"angle",
+        "estimated" (3,)}}, the frames whose light is off (see the module docstring), an off
+        frame whose estimate is another frame's direction with ``"like"`` that frame;
+        ``swapped`` [[a, b], ...], off frames each of whose estimate is the other's direction;
+        ``dark`` [k, ...], frames that light almost none of the pixels facing their light.
     """
     estimated = estimate_directions(obs, base, b)
     length = np.linalg.norm(estimated, axis=1)
@@ -95,10 +97,40 @@ def check_directions(obs, base, b, lights, min_evidence=MIN_DIRECTION_EVIDENCE, 
     record = {"max_angle": round(float(np.nanmax(angle)), 2) if judged.any() else None,
               "off": {int(k): {"angle": round(float(angle[k]), 1), "estimated": [round(float(v), 4) for v in unit[k]]}
                       for k in off}}
-    cross = np.degrees(np.arccos(np.clip(unit[off] @ lights[off].T, -1, 1))) if off.size else np.zeros((0, 0))
-    record["swapped"] = [[int(off[i]), int(off[j])] for i in range(len(off)) for j in range(i + 1, len(off))
-                         if cross[i, j] < SWAP_TOL and cross[j, i] < SWAP_TOL]
+    record["swapped"] = _swapped(off, unit, lights)
+    paired = {k for pair in record["swapped"] for k in pair}
+    for k in off:
+        other = _nearest_other(k, unit[k], lights)
+        if k not in paired and other is not None:
+            record["off"][int(k)]["like"] = other
+    record["dark"] = _dark(base, b, lights)
     return record
+
+
+def _swapped(off, unit, lights):
+    """Pairs [a, b] of off frames each of whose estimate is within SWAP_TOL of the other's light."""
+    cross = np.degrees(np.arccos(np.clip(unit[off] @ lights[off].T, -1, 1))) if off.size else np.zeros((0, 0))
+    return [[int(off[i]), int(off[j])] for i in range(len(off)) for j in range(i + 1, len(off))
+            if cross[i, j] < SWAP_TOL and cross[j, i] < SWAP_TOL]
+
+
+def _nearest_other(k, direction, lights):
+    """The frame other than ``k`` whose light is within SWAP_TOL of ``direction`` (None if none):
+    a frame captured twice, or an order shifted by one."""
+    angles = np.degrees(np.arccos(np.clip(lights @ direction, -1, 1)))
+    angles[k] = np.inf
+    nearest = int(np.argmin(angles))
+    return nearest if angles[nearest] < SWAP_TOL else None
+
+
+def _dark(base, b, lights, facing=0.3, lit_share=0.1, min_facing=MIN_DIRECTION_EVIDENCE):
+    """Frames lit at under ``lit_share`` of the pixels whose fitted normal faces their light
+    (n . l > ``facing``): a light that did not fire, a frame captured in the dark."""
+    albedo = np.linalg.norm(b, axis=1, keepdims=True)
+    faces = (b @ lights.T) > facing * albedo
+    count = faces.sum(axis=0)
+    lit = ((base > 0) & faces).sum(axis=0)
+    return [int(k) for k in np.flatnonzero((count >= min_facing) & (lit < lit_share * count))]
 
 
 def _masked_median(values, mask):

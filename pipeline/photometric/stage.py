@@ -303,8 +303,10 @@ def frame_gains_record(check, frames):
         check["rescaled"] = {name(k): gain for k, gain in check["rescaled"].items()}
     if check.get("directions"):
         directions = dict(check["directions"])
-        directions["off"] = {name(k): v for k, v in directions["off"].items()}
+        directions["off"] = {name(k): dict(v, **({"like": name(v["like"])} if "like" in v else {}))
+                             for k, v in directions["off"].items()}
         directions["swapped"] = [[name(a), name(b)] for a, b in directions["swapped"]]
+        directions["dark"] = [name(k) for k in directions.get("dark", [])]
         check["directions"] = directions
     return {"frame_gains": plain(check)}
 

@@ -83,22 +83,27 @@ def _gain_warnings(frame_gains, lights, transfer=()):
 
 
 def _direction_warnings(directions, lights):
-    off, swapped = directions.get("off") or {}, directions.get("swapped") or []
-    if not off:
-        return []
+    off, swapped, dark = directions.get("off") or {}, directions.get("swapped") or [], directions.get("dark") or []
+    said = [f"frame(s) {', '.join(dark)}: dark at almost every pixel that faces its light (did the light fire?); "
+            "the shadow test left it out"] if dark else []
     if len(off) > UNCALIBRATED_SHARE * lights:
-        return [f"{len(off)} of {lights} frames' lights are not where {LIGHTS} puts them, by the images (up to "
-                f"{max(v['angle'] for v in off.values()):.0f} degrees off): do the light file's order and the "
-                "frames' order match?"]
-    said = [f"frames {a} and {b} look swapped: by the images each one's light is where {LIGHTS} puts the "
-            "other's (are the frames and the light file in the same order?)" for a, b in swapped]
+        return said + [f"{len(off)} of {lights} frames' lights are not where {LIGHTS} puts them, by the images "
+                       f"(up to {max(v['angle'] for v in off.values()):.0f} degrees off): do the light file's order "
+                       "and the frames' order match?"]
+    said += [f"frames {a} and {b} look swapped: by the images each one's light is where {LIGHTS} puts the "
+             "other's (are the frames and the light file in the same order?)" for a, b in swapped]
     paired = {name for pair in swapped for name in pair}
-    alone = {name: v for name, v in off.items() if name not in paired}
-    if alone:
-        listed = ", ".join(f"{name} ({v['angle']:.0f} degrees, from ({', '.join(f'{c:.2f}' for c in v['estimated'])}))"
-                           for name, v in alone.items())
-        said.append(f"frame(s) {listed}: by the images their light is not where {LIGHTS} puts it (a wrong "
-                    "order, a light that moved, or a bad calibration?)")
+    for name, found in off.items():
+        if name in paired:
+            continue
+        if "like" in found:
+            said.append(f"frame {name}: by the images its light is frame {found['like']}'s (a frame captured twice, "
+                        "or the frames' order shifted?)")
+        else:
+            where = ", ".join(f"{c:.2f}" for c in found["estimated"])
+            said.append(f"frame {name}: by the images its light is {found['angle']:.0f} degrees from where "
+                        f"{LIGHTS} puts it, at ({where}) (a wrong order, a light that moved, or a bad "
+                        "calibration?)")
     return said
 
 

@@ -156,19 +156,25 @@ def test_two_swapped_lights_are_found_and_right_ones_are_not(lights):
         assert np.degrees(np.arccos(min(np.dot(found["off"][k]["estimated"], true), 1.0))) < 1.0
 
 
-def test_a_moved_light_is_named_with_where_the_images_put_it():
+def test_a_moved_light_a_repeated_frame_and_a_dark_one_are_each_named():
     from pipeline.photometric.summary import normals_warnings
 
     images, _, mask = scene(NARROW)
     moved = NARROW.copy()
     moved[9] = NARROW[9] + np.array([0.25, 0.0, 0.0])
     moved[9] /= np.linalg.norm(moved[9])
-    record = estimate_normals(images, moved, mask).options["frame_check"]
-    off = record["directions"]["off"]
-    assert list(off) == [9] and record["directions"]["swapped"] == []
-    frames = {"directions": {"off": {"f09": off[9]}, "swapped": []}}
-    (warning,) = normals_warnings({"ok": 1}, len(NARROW), {}, frames)
-    assert warning.startswith("frame(s) f09 (") and "not where calibration/lights.yaml puts it" in warning
-    pair = {"directions": {"off": {"a": off[9], "b": off[9]}, "swapped": [["a", "b"]]}}
+    wrong = images.copy()
+    wrong[20] = wrong[19]        # the camera gave the last frame again
+    wrong[30] *= 0.01            # a light that did not fire
+    directions = estimate_normals(wrong, moved, mask).options["frame_check"]["directions"]
+    assert set(directions["off"]) == {9, 20} and directions["swapped"] == [] and directions["dark"] == [30]
+    assert "like" not in directions["off"][9] and directions["off"][20]["like"] == 19
+    named = {"off": {"f09": directions["off"][9], "f20": dict(directions["off"][20], like="f19")},
+             "swapped": [], "dark": ["f30"]}
+    warnings = normals_warnings({"ok": 1}, len(NARROW), {}, {"directions": named})
+    assert warnings[0].startswith("frame(s) f30: dark at almost every pixel") and "did the light fire" in warnings[0]
+    assert warnings[1].startswith("frame f09: by the images its light is ") and "degrees from where" in warnings[1]
+    assert warnings[2].startswith("frame f20: by the images its light is frame f19's")
+    pair = {"directions": {"off": {"a": directions["off"][9], "b": directions["off"][9]}, "swapped": [["a", "b"]]}}
     (warning,) = normals_warnings({"ok": 1}, len(NARROW), {}, pair)
     assert warning.startswith("frames a and b look swapped")
