@@ -45,7 +45,8 @@ def normals_warnings(counts, lights, options, frame_gains=None, transfer=()):
                         f"{check['expected']:g} expected for one material): several materials? Each pixel "
                         "was fitted with the Lambertian prior instead")
     warnings += _gain_warnings(frame_gains or {}, lights, transfer)
-    warnings += _direction_warnings((frame_gains or {}).get("directions") or {}, lights)
+    if not (frame_gains or {}).get("uncalibrated"):   # else the fit the directions rest on is off too
+        warnings += _direction_warnings((frame_gains or {}).get("directions") or {}, lights)
     warnings += _outline_warnings(options.get("outline_check"))
     return warnings
 
@@ -74,7 +75,7 @@ def _gain_warnings(frame_gains, lights, transfer=()):
                 f"({low:.2f}x to {high:.2f}x the others): were the intensities given ({LIGHTS})? The frames "
                 "were rescaled to the others, but a brightness that changes steadily across the lights "
                 "looks like a tilt of the whole object: calibrate the intensities, the normals may be off "
-                f"by degrees{gamma}"]
+                f"by degrees (the lights' directions were not judged){gamma}"]
     listed = ", ".join(f"{name} ({gain:.2f}x)" for name, gain in list(rescaled.items())[:6])
     more = f" and {len(rescaled) - 6} more" if len(rescaled) > 6 else ""
     return [f"frame(s) {listed}{more}: brighter or darker than their lights' intensities in {LIGHTS} say, "

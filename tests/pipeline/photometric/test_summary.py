@@ -42,7 +42,10 @@ def test_rescaled_frames_are_named_and_a_decode_curve_is_suspected_too():
     many = {"verdict": "rescaled", "rescaled": {f"f{k}": 0.5 + k / 10 for k in range(8)}, "uncalibrated": True}
     (text,) = normals_warnings({"ok": 100}, 12, {}, many)
     assert text.startswith("8 of 12 frames are not as bright") and "0.50x to 1.20x" in text
-    assert "were the intensities given" in text
+    assert "were the intensities given" in text and "directions were not judged" in text
+    off = {"off": {"f1": {"angle": 8.0, "estimated": [0.1, 0.2, 0.97]}}, "swapped": [], "dark": []}
+    assert len(normals_warnings({"ok": 100}, 12, {}, dict(many, directions=off))) == 1
+    assert len(normals_warnings({"ok": 100}, 12, {}, dict(one, directions=off))) == 2
     assert normals_warnings({"ok": 100}, 12, {}, {"verdict": "consistent", "max_deviation": 0.02}) == []
     line = normals_summary({"pixels": 100, "status_counts": {"ok": 100}, "frame_gains": one})
     assert line.endswith("; 1 frame(s) rescaled to the others' brightness")
