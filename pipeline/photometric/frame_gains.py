@@ -10,17 +10,19 @@ frame's value; over many pixels, the median ratio of a frame's values to those p
 that frame's brightness relative to the others (its gain), whatever the object's shape.
 
 :func:`check_frames` measures the gains on a fixed random sample of the object's pixels before
-the solve. A frame whose gain departs from the others' by more than :data:`GAIN_TOL` is
-rescaled by its gain (the estimate is refined in :data:`GAIN_ROUNDS` rounds, each with the
-frames rescaled so far); the others are left as given, so that a session whose intensities
-are right is solved exactly as before. The correction is reported in the result's options
-(``frame_gains``) and by the normals stage.
+the solve. A frame whose gain departs from the others' by more than :data:`GAIN_TOL` and by
+more than :data:`SIGNIFICANCE` x the spread of its own ratios is rescaled by its gain (the
+estimate is refined in :data:`GAIN_ROUNDS` rounds, each with the frames rescaled so far); the
+others are left as given, so that a session whose intensities are right is solved exactly as
+before. The check is reported in the result's options (``frame_check``) and by the normals
+stage; on the same sample :mod:`pipeline.photometric.frame_directions` checks each frame's
+light direction.
 
 What the images cannot tell: a gain that varies linearly across the lights (log gain = a . l)
 is, under a narrow cone of lights, nearly the same as a small shear of every normal. Measured
 on DiLiGenT with its intensities left out: after rescaling, the gains' error is a ramp of
 that form (log error 0.4-0.6 x l_x) plus 0.01 (median); the normals stay far off (ball 19.7 ->
-15.6 degrees), so psrig says the intensities look uncalibrated rather than that it fixed them.
+10.3 degrees), so psrig says the intensities look uncalibrated rather than that it fixed them.
 Measurements behind the defaults: docs/photometric-stereo.md (frame gains).
 """
 
@@ -34,8 +36,8 @@ from .frame_directions import check_directions
 from .methods import shading
 from .selection import select_observations
 
-__all__ = ["FrameCheck", "GainMeasure", "check_frames", "measure_gains", "GAIN_TOL", "GAIN_SAMPLE", "GAIN_ROUNDS", "MIN_EVIDENCE",
-           "UNCALIBRATED_SHARE", "SIGNIFICANCE", "FRAME_GAIN_MODES"]
+__all__ = ["FrameCheck", "GainMeasure", "check_frames", "measure_gains", "GAIN_TOL", "GAIN_SAMPLE", "GAIN_ROUNDS",
+           "MIN_EVIDENCE", "UNCALIBRATED_SHARE", "SIGNIFICANCE", "FRAME_GAIN_MODES"]
 
 #: frames whose brightness departs from the others' by more than this (log units: 16 %) are
 #: rescaled. Measured on DiLiGenT ball, cat and reading with their intensities: every frame
@@ -95,7 +97,8 @@ class FrameCheck:
         return self.gains if self.rescaled.size else None
 
     def record(self):
-        """The result's ``frame_gains`` entry: verdict, largest deviation, rescaled frames' gains."""
+        """The result's ``frame_check`` entry: verdict, largest deviation, rescaled frames' gains, the
+        directions' record."""
         judged = self.deviation[np.isfinite(self.deviation)]
         out = {"verdict": self.verdict,
                "max_deviation": round(float(np.abs(judged).max()), 4) if judged.size else None}
