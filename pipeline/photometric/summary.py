@@ -29,13 +29,13 @@ _WARNINGS = {
 }
 
 
-
-
 def normals_warnings(counts, lights, options, frame_gains=None, transfer=()):
     """What a user should know of a normals run (list of str): statuses over their share of the
     object's pixels (:data:`WARN_SHARES`), a failed single-material check, and the frames
-    rescaled to the others' brightness (``frame_gains``, :func:`frame_gains_record`'s entry;
-    ``transfer`` the decode record's transfer functions, which a wrong one explains too)."""
+    rescaled to the others' brightness (``frame_gains``, the stage record's entry that
+    :func:`pipeline.photometric.stage.frame_gains_record` makes; ``transfer`` the decode record's
+    transfer functions, which a wrong one explains too), the frames' light directions and the
+    outline check."""
     pixels = max(sum(counts.values()), 1)
     warnings = [_WARNINGS[name].format(share=f"{counts[name] / pixels:.0%}", count=counts[name], lights=lights)
                 for name, limit in WARN_SHARES.items() if counts.get(name) and counts[name] / pixels > limit]
@@ -44,9 +44,10 @@ def normals_warnings(counts, lights, options, frame_gains=None, transfer=()):
         warnings.append(f"one shared shape does not fit the object (residual ratio {check['ratio']:g}, "
                         f"{check['expected']:g} expected for one material): several materials? Each pixel "
                         "was fitted with the Lambertian prior instead")
-    warnings += _gain_warnings(frame_gains or {}, lights, transfer)
-    if not (frame_gains or {}).get("uncalibrated"):   # else the fit the directions rest on is off too
-        warnings += _direction_warnings((frame_gains or {}).get("directions") or {}, lights)
+    frame_gains = frame_gains or {}
+    warnings += _gain_warnings(frame_gains, lights, transfer)
+    if not frame_gains.get("uncalibrated"):   # else the fit the directions rest on is off too
+        warnings += _direction_warnings(frame_gains.get("directions") or {}, lights)
     warnings += _outline_warnings(options.get("outline_check"))
     return warnings
 
