@@ -21,7 +21,7 @@ from ..errors import InputError
 from ..jit import single_threaded
 from .anchor import anchor_scale, anchor_wanted, first_verdict
 from .engine import CHUNK_SIZE, KeptSelection, gatherer, prepare_context, run_chunks
-from .frame_gains import check_frames
+from .frame_gains import FrameCheck, check_frames
 from .methods import get_method
 from .near_lights import PointLights
 from .outline import outline_check
@@ -107,6 +107,11 @@ class SolvePlan:
     gains: np.ndarray = None
     gain_check: dict = None
 
+    @property
+    def solver_lights(self):
+        """The lights as the engine's gatherer takes them: the near lights, else the directions."""
+        return self.near if self.near is not None else self.lights
+
 
 def check_lights(lights, count, shape):
     """Validated lights for ``count`` images of ``shape`` (H, W): unit directions or PointLights.
@@ -138,10 +143,6 @@ def check_lights(lights, count, shape):
     lights = lights / np.linalg.norm(lights, axis=-1, keepdims=True)
     _check_rank(lights if lights.ndim == 2 else lights.reshape(count, -1, 3).mean(axis=1))
     return lights
-
-
-def _solver_lights(plan):
-    return plan.near if plan.near is not None else plan.lights
 
 
 def _check_rank(shared):
@@ -196,7 +197,10 @@ def check_plan_frames(plan, gather, pixels):
     # which the check would read as gains (measured: 8 of 16 frames "rescaled" by 0.74 on a plane
     # 30 % nearer than the spheres'); their gains are checked only when asked for
     mode = False if plan.near is not None and plan.frame_gains == "auto" else plan.frame_gains
-    check = check_frames(gather, pixels, plan.options, mode=mode)
+    # unchecked, no sample is gathered (near lights' per-pixel directions cost; the near-depth
+    # search solves many times)
+    check = FrameCheck.unchecked(len(plan.lights)) if mode is False else \
+        check_frames(gather, pixels, plan.options, mode=mode)
     return replace(plan, gains=check.applied(), gain_check=check.record())
 
 
@@ -249,7 +253,7 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     k = images.shape[0]
     flat_images, flat_valid = images.reshape(k, -1), None if valid is None else valid.reshape(k, -1)
     pixels = np.flatnonzero(mask)
-    plan = check_plan_frames(plan, gatherer(flat_images, flat_valid, _solver_lights(plan)), pixels)
+    plan = check_plan_frames(plan, gatherer(flat_images, flat_valid, plan.solver_lights), pixels)
     runs = []
     # the anchor's corrected run keeps the first run's selection (reuse_selection)
     kept = KeptSelection(pixels, k) if plan.anchor else None

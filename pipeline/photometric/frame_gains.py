@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import InputError
-from .frame_directions import check_directions
+from .frame_directions import check_directions, column_quantiles
 from .methods import shading
 from .selection import select_observations
 
@@ -91,6 +91,11 @@ class FrameCheck:
     verdict: str = "consistent"
     spread: np.ndarray = None
     directions: dict = None
+
+    @classmethod
+    def unchecked(cls, count):
+        """The check of ``count`` frames that was not made: every frame as given."""
+        return cls(np.ones(count), np.full(count, np.nan), verdict="not checked", spread=np.full(count, np.nan))
 
     def applied(self):
         """The gains the solve divides by, or None when every frame is left as given."""
@@ -154,29 +159,12 @@ def measure_gains(obs, valid, lights, gains, options, min_evidence=MIN_EVIDENCE)
     albedo = np.linalg.norm(b, axis=1, keepdims=True)
     use = (base > 0) & (predicted > 0.05 * albedo) & (scaled > 0)
     ratio = np.where(use, np.log(np.where(use, scaled, 1.0) / np.where(use, predicted, 1.0)), np.nan)
-    low, step, high = _column_quantiles(ratio)
+    low, step, high = column_quantiles(ratio, use, (0.25, 0.5, 0.75))
     judged = use.sum(axis=0) >= min_evidence
     step, spread = np.where(judged, step, np.nan), np.where(judged, (high - low) / 1.349, np.nan)
     if judged.any():
         step -= np.median(step[judged])
     return GainMeasure(step, spread, scaled, base, b)
-
-
-def _column_quantiles(values):
-    """Lower quartile, median and upper quartile of each column (K,) of ``values`` (N, K) over
-    its finite entries (NaN where none): one sort, NaN last (np.nanmedian goes column by
-    column, twice as slow here)."""
-    ordered = np.sort(values, axis=0)
-    count = np.isfinite(values).sum(axis=0)
-    cols = np.arange(values.shape[1])
-
-    def at(q):
-        pos = np.maximum(count - 1, 0) * q
-        low, high = np.floor(pos).astype(int), np.ceil(pos).astype(int)
-        value = ordered[low, cols] + (pos - low) * (ordered[high, cols] - ordered[low, cols])
-        return np.where(count > 0, value, np.nan)
-
-    return at(0.25), at(0.5), at(0.75)
 
 
 def check_frames(gather, pixels, options, mode="auto", sample=GAIN_SAMPLE, tol=GAIN_TOL, rounds=GAIN_ROUNDS,
@@ -209,7 +197,7 @@ def check_frames(gather, pixels, options, mode="auto", sample=GAIN_SAMPLE, tol=G
     count = obs.shape[1]
     gains = np.ones(count)
     if mode is False or count < 4:
-        return FrameCheck(gains, np.full(count, np.nan), verdict="not checked", spread=np.full(count, np.nan))
+        return FrameCheck.unchecked(count)
     measured = measure_gains(obs, valid, lights, gains, options)
     deviation, spread = measured.step, measured.spread
     chosen = np.isfinite(deviation) if mode is True else _departs(deviation, spread, tol, significance)

@@ -197,12 +197,8 @@ def _stack_gatherer(folder, solve, gains):
     stack = np.load(Path(folder) / "stack.npy", mmap_mode="r")
     valid = np.load(Path(folder) / "valid.npy", mmap_mode="r")
     k = stack.shape[0]
-    return gatherer(stack.reshape(k, -1), valid.reshape(k, -1), _solver_lights(solve),
+    return gatherer(stack.reshape(k, -1), valid.reshape(k, -1), solve.solver_lights,
                     gains=gains)
-
-
-def _solver_lights(solve):
-    return solve.near if solve.near is not None else solve.lights
 
 
 def run_tile(plan, tile, hook=None):
@@ -225,7 +221,7 @@ def run_tile(plan, tile, hook=None):
     valid = np.load(plan.scratch("valid.npy"), mmap_mode="r")
     mask = np.load(plan.scratch("mask.npy"), mmap_mode="r")
     k, width = stack.shape[0], stack.shape[2]
-    gather = gatherer(stack[:, r0:r1].reshape(k, -1), valid[:, r0:r1].reshape(k, -1), _solver_lights(plan.solve),
+    gather = gatherer(stack[:, r0:r1].reshape(k, -1), valid[:, r0:r1].reshape(k, -1), plan.solve.solver_lights,
                       offset=r0 * width, gains=plan.solve.gains)
     local = np.flatnonzero(mask[r0:r1])[skip:skip + count]
     solve = plan.solve
