@@ -239,20 +239,22 @@ def _lm_step(obs, weights, n, c, lights, h, y5, pen, mu):
     with np.errstate(invalid="ignore"):
         z = np.linalg.solve(_coefficient_matrix(weights, s, x, y5) + pen, a_nc.transpose(0, 2, 1))
     schur = a_nn - a_nc @ z
-    det0 = schur[:, 0, 0] * schur[:, 1, 1] - schur[:, 0, 1] ** 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        newton = np.stack([(schur[:, 1, 1] * grad[:, 0] - schur[:, 0, 1] * grad[:, 1]) / det0,
-                           (schur[:, 0, 0] * grad[:, 1] - schur[:, 0, 1] * grad[:, 0]) / det0], 1)
-    newton[~(det0 > 0)] = np.inf
+    newton = _solve2(schur[:, 0, 0], schur[:, 0, 1], schur[:, 1, 1], grad, np.inf)
     d0, d1 = mu * schur[:, 0, 0] + 1e-300, mu * schur[:, 1, 1] + 1e-300
-    a00, a01, a11 = schur[:, 0, 0] + d0, schur[:, 0, 1], schur[:, 1, 1] + d1
-    det = a00 * a11 - a01 * a01
-    with np.errstate(divide="ignore", invalid="ignore"):
-        step = np.stack([(a11 * grad[:, 0] - a01 * grad[:, 1]) / det, (a00 * grad[:, 1] - a01 * grad[:, 0]) / det], 1)
-    step[~(det > 0)] = np.nan
+    step = _solve2(schur[:, 0, 0] + d0, schur[:, 0, 1], schur[:, 1, 1] + d1, grad, np.nan)
     # the decrease the damped quadratic model predicts: step . (grad + damping step)
     predicted = step[:, 0] * (grad[:, 0] + d0 * step[:, 0]) + step[:, 1] * (grad[:, 1] + d1 * step[:, 1])
     return step, t1, t2, predicted, newton
+
+
+def _solve2(a00, a01, a11, rhs, singular):
+    """The solutions (N, 2) of the symmetric 2 x 2 systems [[a00, a01], [a01, a11]] x = rhs (N, 2),
+    ``singular`` where a system is not positive definite."""
+    det = a00 * a11 - a01 * a01
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = np.stack([(a11 * rhs[:, 0] - a01 * rhs[:, 1]) / det, (a00 * rhs[:, 1] - a01 * rhs[:, 0]) / det], 1)
+    x[~(det > 0)] = singular
+    return x
 
 
 def _results(obs, weights, n, c, lights, h, y5, pen, moving, dof_below):
