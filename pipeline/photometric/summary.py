@@ -2,14 +2,17 @@
 
 :func:`normals_warnings` turns a run's status counts and its checks (the single-material check,
 the frames' gains and light directions of :mod:`pipeline.photometric.frame_gains`, the outline
-of :mod:`pipeline.photometric.outline`) into the warnings the stage records; the report, ``psrig
+of :mod:`pipeline.photometric.outline`, the frames' registration of
+:mod:`pipeline.photometric.registration`) into the warnings the stage records; the report, ``psrig
 normals`` and ``psrig run`` show them. :func:`normals_summary` is the line printed per session.
 """
+
+import numpy as np
 
 from ..paths import LIGHTS
 from .frame_gains import UNCALIBRATED_SHARE
 from .methods import share_text
-from .outline import SEEN_WHOLE, mirrored_axes
+from .outline import SEEN_WHOLE, mirrored_axes, transposed_axes
 
 __all__ = ["normals_warnings", "normals_summary", "WARN_SHARES"]
 
@@ -29,13 +32,14 @@ _WARNINGS = {
 }
 
 
-def normals_warnings(counts, lights, options, frame_gains=None, transfer=()):
+def normals_warnings(counts, lights, options, frame_gains=None, transfer=(), registration=None):
     """What a user should know of a normals run (list of str): statuses over their share of the
     object's pixels (:data:`WARN_SHARES`), a failed single-material check, and the frames
     rescaled to the others' brightness (``frame_gains``, the stage record's entry that
     :func:`pipeline.photometric.stage.frame_gains_record` makes; ``transfer`` the decode record's
-    transfer functions, which a wrong one explains too), the frames' light directions and the
-    outline check."""
+    transfer functions, which a wrong one explains too), the frames' light directions, the
+    outline check and the frames that do not register with the others (``registration``, the
+    stage record's entry of :func:`pipeline.photometric.registration.check_registration`)."""
     pixels = max(sum(counts.values()), 1)
     warnings = [_WARNINGS[name].format(share=f"{counts[name] / pixels:.0%}", count=counts[name], lights=lights)
                 for name, limit in WARN_SHARES.items() if counts.get(name) and counts[name] / pixels > limit]
@@ -49,10 +53,43 @@ def normals_warnings(counts, lights, options, frame_gains=None, transfer=()):
     if not frame_gains.get("uncalibrated"):   # else the fit the directions rest on is off too
         warnings += _direction_warnings(frame_gains.get("directions") or {}, lights)
     warnings += _outline_warnings(options.get("outline_check"))
+    warnings += _registration_warnings(registration or {}, lights)
     return warnings
 
 
+def _registration_warnings(found, lights):
+    moved = found.get("moved") or {}
+    if not moved:
+        return []
+    sizes = [float(np.hypot(*shift)) for shift in moved.values()]
+    span = f"{min(sizes):.1f}-{max(sizes):.1f} px" if len(sizes) > 1 else f"{sizes[0]:.1f} px"
+    if found.get("run_from") is not None:
+        which = f"every frame from {found['run_from']} on ({len(moved)} of {lights})"
+        why = "the object or the camera moved during the capture, before that frame"
+    else:
+        listed = ", ".join(list(moved)[:6]) + (f" and {len(moved) - 6} more" if len(moved) > 6 else "")
+        which = f"frame(s) {listed} ({len(moved)} of {lights})"
+        why = "the object or the camera moved while they were taken"
+    said = f"{which}: the object sits {span} away from where the other frames and the normals put it " \
+           f"(registered against the normals' rendering of each frame): {why}? "
+    if found.get("aligned"):
+        return [said + "They were aligned to the others by those shifts and the normals solved again "
+                "(psrig normals --align-frames off: only say); capture them again to be sure"]
+    why_not = f" (not aligned: {found['not_aligned']})" if found.get("not_aligned") else ""
+    return [said + "Their pixels see other points of the surface, which blurs and biases the normals: capture "
+            f"them again, or flag their lights in {LIGHTS} to leave them out{why_not}"]
+
+
 def _outline_warnings(check):
+    exchanged = transposed_axes(check)
+    if exchanged is not None:
+        turned = f", and {' and '.join(exchanged)} then the other way" if exchanged else ""
+        swapped = check["swapped"]
+        return [f"the normals at the object's outline agree with it only with their x and y exchanged "
+                f"({swapped['x']:.0%} in x, {swapped['y']:.0%} in y, against {SEEN_WHOLE} on objects seen "
+                f"whole): the light file's x and y are probably swapped{turned} (psrig's camera frame: x right, "
+                "y up toward the top of the image, z toward the camera): exchange the light file's x and y "
+                f"columns{', negate ' + ' and '.join(exchanged) + ' after,' if exchanged else ''} and import again"]
     mirrored = mirrored_axes(check)
     if not mirrored:
         return []
@@ -130,7 +167,9 @@ def normals_summary(record):
     flagged = f"; lights left out (flagged in {LIGHTS}): {', '.join(map(str, left_out))}" if left_out else ""
     rescaled = (record.get("frame_gains") or {}).get("rescaled") or {}
     gains = f"; {len(rescaled)} frame(s) rescaled to the others' brightness" if rescaled else ""
-    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{flagged}"
+    found = record.get("registration") or {}
+    aligned = f"; {len(found['moved'])} moved frame(s) aligned to the others" if found.get("aligned") else ""
+    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{aligned}{flagged}"
 
 
 def _range_text(anchor):

@@ -3,7 +3,7 @@
 import numpy as np
 
 from pipeline.photometric import estimate_normals, normals_warnings
-from pipeline.photometric.outline import mirrored_axes, outline_check
+from pipeline.photometric.outline import mirrored_axes, outline_check, transposed_axes
 
 from tests.pipeline.photometric.ps_synthetic import cook_torrance_images, hemisphere_lights, sphere_normals
 
@@ -27,6 +27,21 @@ def test_mirrored_lights_give_normals_that_point_into_the_mask_and_a_warning():
     (warning,) = normals_warnings({"ok": 1}, len(LIGHTS), {"outline_check": flipped})
     assert "point into the mask along y" in warning and "negate y in the light file" in warning
     assert normals_warnings({"ok": 1}, len(LIGHTS), {"outline_check": right}) == []
+
+
+def test_a_light_file_with_x_and_y_exchanged_is_named_and_so_is_a_turn_by_90_degrees():
+    normals, mask = sphere_normals(64)
+    images = cook_torrance_images(normals, mask, LIGHTS, roughness=0.3, noise=0.002)
+    right = estimate_normals(images, LIGHTS, mask).options["outline_check"]
+    assert transposed_axes(right) is None
+    exchanged = estimate_normals(images, LIGHTS[:, [1, 0, 2]], mask).options["outline_check"]
+    assert transposed_axes(exchanged) == [] and mirrored_axes(exchanged) == []
+    (warning,) = normals_warnings({"ok": 1}, len(LIGHTS), {"outline_check": exchanged})
+    assert "x and y are probably swapped (" in warning and "exchange the light file's x and y columns and" in warning
+    turned = estimate_normals(images, LIGHTS[:, [1, 0, 2]] * [-1, 1, 1], mask).options["outline_check"]
+    assert transposed_axes(turned) == ["y"]
+    (warning,) = normals_warnings({"ok": 1}, len(LIGHTS), {"outline_check": turned})
+    assert "and y then the other way" in warning and "negate y after" in warning
 
 
 def test_no_verdict_without_a_silhouette():
