@@ -34,6 +34,10 @@ def register(sub):
                              "images: auto (the default) rescales the frames that are more than 16 %% "
                              "off the others, on rescales every frame by its measured gain, off trusts "
                              "the intensities")
+    parser.add_argument("--align-frames", choices=("auto", "off"), default="auto",
+                        help="frames that see the object shifted against the others (it or the camera "
+                             "moved): auto (the default) aligns them by their measured shift and solves "
+                             "again where the object's shading pins position, off only says")
     parser.add_argument("--force", action="store_true", help="run even when the stage is up to date")
     parser.set_defaults(func=run)
 
@@ -55,7 +59,8 @@ def run(args):
     record = normals_session(session, method=args.method, force=args.force, t_low=t_low,
                              lights_model=args.lights_model, near_depth=args.near_depth == "on",
                              specular_anchor=_switch(args.specular_anchor), frame_gains=_switch(args.frame_gains),
-                             t_shadow=args.t_shadow, reject_k=args.reject_k, shape_prior=args.shape_prior)
+                             t_shadow=args.t_shadow, reject_k=args.reject_k, shape_prior=args.shape_prior,
+                             align=args.align_frames)
     if record is None:
         print(f"{session.root}: normals up to date (use --force to rerun)")
         return 0

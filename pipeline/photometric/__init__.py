@@ -17,7 +17,8 @@ Where things live:
 - :mod:`.anchor`: the light cone corrected on specular peaks;
 - :mod:`.frame_gains`, :mod:`.frame_directions`: each frame's brightness and light direction
   checked against the images before the fit; :mod:`.outline` the normals checked against the
-  mask's outline after it (a light file with an axis the other way);
+  mask's outline after it (a light file with an axis the other way); :mod:`.registration`
+  each frame against the normals' rendering of it (the object or camera moved), in the stage;
 - :mod:`.near_lights`, :mod:`.near_depth`: near point lights, at the integrated depth;
 - :mod:`.stage`: the ``normals`` stage of a session, :mod:`.summary` what it says of a run;
   :mod:`.tiles`: the same stage in pixel tiles for Dask.
@@ -30,6 +31,7 @@ from .biquadratic import Biquadratic, biquadratic_method
 from .estimate import PhotometricResult, SolvePlan, check_lights, estimate_normals, plan_solve
 from .methods import METHODS, STATUS, STATUS_NAMES, get_method, register_model_methods, share_text
 from .near_lights import PointLights, observations_at
+from .registration import check_registration
 from .selection import light_spread_deg, resolve_selection
 from .stage import normals_session
 from .summary import normals_summary, normals_warnings
@@ -40,5 +42,5 @@ register_model_methods()
 __all__ = ["share_text", "estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_lights", "METHODS",
            "get_method", "STATUS", "STATUS_NAMES", "Biquadratic", "biquadratic_method", "PointLights",
            "observations_at", "light_spread_deg", "resolve_selection", "normals_session", "normals_summary",
-           "normals_warnings", "TilePlan",
+           "normals_warnings", "check_registration", "TilePlan",
            "plan_normals", "run_tile", "assemble_normals", "WHOLE_IMAGE", "SCRATCH"]

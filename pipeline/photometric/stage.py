@@ -25,14 +25,18 @@ from .estimate import estimate_normals
 from .methods import STATUS, STATUS_NAMES, STATUS_PALETTE
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
+from .registration import align_frames, alignable, check_registration
 from .summary import normals_warnings
 
 __all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack",
-           "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "STAGE",
-           "LIGHT_MODELS", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS"]
+           "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "registration_record",
+           "STAGE",
+           "LIGHT_MODELS", "ALIGN_MODES", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS"]
 
 STAGE = "normals"
 LIGHT_MODELS = ("auto", "directional", "near")
+#: what the stage does with frames that do not register with the others (see :func:`normals_session`)
+ALIGN_MODES = ("auto", "off")
 # Eq. 2's parameters with their monomials; names sort in order and avoid the bare R/G/B/A that
 # EXR readers treat as colour channels.
 PAPER_NAMES = ("brdf.A_x2y2", "brdf.B_x2y", "brdf.C_x2", "brdf.D_xy2", "brdf.E_xy", "brdf.F_x",
@@ -138,10 +142,13 @@ def light_model(lights, requested="auto"):
     return "directional"
 
 
-def stage_params(method, lights_model, options, near_depth=True):
+def stage_params(method, lights_model, options, near_depth=True, align="auto"):
     """The stage record's parameters: method, the options given (not None), the light model
-    when not 'auto' and ``near_depth`` when off (so records of earlier versions stay current)."""
+    when not 'auto', ``near_depth`` when off and ``align`` when not 'auto' (so records of earlier
+    versions stay current)."""
     params = {"method": method, **{k: v for k, v in sorted(options.items()) if v is not None}}
+    if align != "auto":
+        params["align"] = align
     if lights_model != "auto":
         params["lights_model"] = lights_model
     if not near_depth:
@@ -158,7 +165,8 @@ def _read_stage_lights(session, frames):
     return lights, [f for f in frames if f["light"] not in lights.flags]
 
 
-def begin_normals(session, *, method="biquadratic", force=False, lights_model="auto", near_depth=True, **options):
+def begin_normals(session, *, method="biquadratic", force=False, lights_model="auto", near_depth=True, align="auto",
+                  **options):
     """Start a normals run: its inputs, whether it is up to date, and the lights it uses.
 
     Returns a :class:`NormalsRun`, or None when the stage record still matches (and not
@@ -166,7 +174,7 @@ def begin_normals(session, *, method="biquadratic", force=False, lights_model="a
     """
     frames = _object_frames(session)
     mask_rel = session.manifest["lights"].get("object_mask")
-    params = stage_params(method, lights_model, options, near_depth)
+    params = stage_params(method, lights_model, options, near_depth, align)
     inputs = _inputs(session, frames, mask_rel)
     if not force and session.stage_is_current(STAGE, params, inputs):
         return None
@@ -231,7 +239,7 @@ def object_mask(session, run, images):
 
 
 def normals_session(session, *, method="biquadratic", force=False, show_progress=True,
-                    lights_model="auto", near_depth=True, **options):
+                    lights_model="auto", near_depth=True, align="auto", **options):
     """Run the normals stage on a session; returns the stage record (None when up to date).
 
     ``options`` go to :func:`pipeline.photometric.estimate_normals` (t_low, t_shadow, reject_k,
@@ -240,9 +248,15 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     give per-pixel directions and inverse-square falloff from the calibrated positions, at the
     depth a first solve's normals integrate to when ``near_depth`` (default; see
     :mod:`pipeline.photometric.near_depth`), else on the plane of the calibration spheres.
+    Then every frame is registered against the normals' rendering of it
+    (:func:`pipeline.photometric.registration.check_registration`); ``align`` 'auto' aligns
+    the frames found moved and solves again where the object pins position well
+    (:func:`pipeline.photometric.registration.alignable`), 'off' only says.
     """
+    if align not in ALIGN_MODES:
+        raise StageError(f"normals: align must be one of {', '.join(ALIGN_MODES)}, got {align!r}")
     run = begin_normals(session, method=method, force=force, lights_model=lights_model, near_depth=near_depth,
-                        **options)
+                        align=align, **options)
     if run is None:
         return None
     channels = ChannelSums()
@@ -260,15 +274,40 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
             result, depth = refine_near_depth(solve, lights, mask, passes=passes)
         else:
             result, depth = solve(lights, mask), None
-    return record_normals(session, run, result, channels, near_depth=depth)
+    # after the solve: every frame against the model's rendering of it (the object or camera moved?)
+    if run.model == "near":
+        registration = {"verdict": "not checked", "reason": "near lights"}
+    else:
+        result, registration = _register(images, valid, lights, mask, result, method, run.options, align)
+    return record_normals(session, run, result, channels, near_depth=depth, registration=registration)
 
 
-def record_normals(session, run, result, channels, near_depth=None):
+def _register(images, valid, lights, mask, result, method, options, align):
+    """Every frame against the normals' rendering of it (the object or camera moved?); with
+    ``align`` 'auto', the moved frames aligned and the normals solved again. Returns the
+    result to keep and the check's finding."""
+    def solve(stack, usable, chosen=slice(None)):
+        return estimate_normals(stack, lights[chosen], mask, method=method, valid=usable, **options)
+
+    found = check_registration(images, result, lights, valid,
+                               resolve=lambda keep: solve(images[keep], valid[keep], keep))
+    if found.get("moved"):
+        if align == "auto" and alignable(found):
+            result = solve(*align_frames(images, valid, found["moved"]))
+            found["aligned"] = True
+        else:
+            found["not_aligned"] = "psrig normals --align-frames off" if align != "auto" else \
+                f"the object's shading pins position only to about {found['median_departure_px']:.1f} px"
+    return result, found
+
+
+def record_normals(session, run, result, channels, near_depth=None, registration=None):
     """Write ``normals/`` from a :class:`PhotometricResult` and record the stage; returns the record.
 
     ``channels`` is the :class:`ChannelSums` gathered while the frames were read (the albedo's
     colour); ``near_depth`` :func:`pipeline.photometric.near_depth.refine_near_depth`'s report,
-    kept when it ran a pass.
+    kept when it ran a pass; ``registration`` :func:`pipeline.photometric.registration.check_registration`'s
+    finding (by frame index), kept by frame id (the tiled stage has none).
     """
     outputs = _write_outputs(session, result, channels)
     counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
@@ -280,8 +319,10 @@ def record_normals(session, run, result, channels, near_depth=None):
     extra.update(frame_gains_record(result.options.get("frame_check"), run.frames))
     if result.options.get("outline_check"):
         extra["outline_check"] = plain(result.options["outline_check"])
+    extra.update(registration_record(registration, run.frames))
     transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
-    extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer)
+    extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer,
+                                         registration=extra.get("registration"))
     return session.record_stage(STAGE, run.params, run.inputs, outputs, seconds=time.time() - run.started,
                                 **extra)
 
@@ -309,6 +350,18 @@ def frame_gains_record(check, frames):
         directions["dark"] = [name(k) for k in directions.get("dark", [])]
         check["directions"] = directions
     return {"frame_gains": plain(check)}
+
+
+def registration_record(found, frames):
+    """The stage record's ``registration`` entry ({} without a check): the moved frames by id."""
+    if not found:
+        return {}
+    found = dict(found)
+    if found.get("moved"):
+        found["moved"] = {frames[int(k)]["id"]: shift for k, shift in found["moved"].items()}
+    if found.get("run_from") is not None:
+        found["run_from"] = frames[int(found["run_from"])]["id"]
+    return {"registration": plain(found)}
 
 
 def _write_outputs(session, result, channels):

@@ -40,6 +40,8 @@ from .anchor import first_verdict
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)
 from .estimate import check_lights, check_plan_frames, plan_solve, result_from_maps
+from .near_lights import PointLights
+from .registration import check_registration
 from .stage import STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
 
 __all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
@@ -201,6 +203,19 @@ def _stack_gatherer(folder, solve, gains):
                     gains=gains)
 
 
+def _registration(plan, result):
+    """The serial stage's registration check on the memory-mapped stack; frames found moved are
+    named but not aligned (that would take a second tiled solve)."""
+    lights = plan.solve.solver_lights
+    if isinstance(lights, PointLights):
+        return {"verdict": "not checked", "reason": "near lights"}
+    found = check_registration(np.load(plan.scratch("stack.npy"), mmap_mode="r"), result, lights,
+                               np.load(plan.scratch("valid.npy"), mmap_mode="r"))
+    if found.get("moved"):
+        found["not_aligned"] = "the tiled stage does not solve again; psrig normals on the session aligns them"
+    return found
+
+
 def run_tile(plan, tile, hook=None):
     """Solve one tile (an item of ``plan.tiles``); returns the tile file's path (str).
 
@@ -291,7 +306,7 @@ def assemble_normals(plan, tile_paths=None):
     shared = {key: plan.context.get(key) for key in SHARED_KEYS}
     saved = plan.scratch(CHANNELS)
     channels = ChannelSums(np.load(saved) if saved.is_file() else None)   # none saved: grey frames
-    record = record_normals(session, plan.run, result_from_maps(out, mask, plan.solve.method, options, shared),
-                            channels)
+    result = result_from_maps(out, mask, plan.solve.method, options, shared)
+    record = record_normals(session, plan.run, result, channels, registration=_registration(plan, result))
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record
