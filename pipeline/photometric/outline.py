@@ -10,9 +10,10 @@ lights' axis is the other way round. Measured (DiLiGenT ball, cat, reading): wit
 lights, 95-100 % of the outline pixels agree in x and in y; with y (or x) negated, 0-5 %.
 
 A light file whose x and y are exchanged (x down the image's columns, y along its rows: a
-transposed array) fits the images as well too, with the normals' x and y exchanged: the outline
-then agrees with the exchanged normals (ball, cat, reading: 0.95-1.00 on both axes, against
-0.30-0.67 with the right lights, whose direct shares are then 0.30-0.71).
+transposed array) fits the images as well too, with the normals' x and y exchanged. Its direct
+shares say nothing (0.30-0.71), but the outline agrees with the normals' x and y exchanged:
+0.95-1.00 on both axes on ball, cat and reading, against 0.30-0.67 with the right lights
+(:func:`transposed_axes`).
 
 An object whose outline is not its silhouette (a crop of a larger surface, a relief filling the
 mask) has no such cue; :func:`outline_check` then finds no clear agreement either way, and

@@ -6,8 +6,8 @@ bumped mid-capture, an object that settled on its stand or a camera that crept b
 some frames, and nothing in a per-pixel fit says so: the robust selection leaves the moved
 frames' observations out where they disagree most (edges, texture) and keeps them where the
 shading is smooth, and the normals come out blurred and biased by a degree or more (DiLiGenT
-cat 4.89 -> 6.17 degrees, reading 10.82 -> 12.27, ball 0.81 -> 2.31, with the last 40 of 96
-frames moved by 2.5 px).
+cat 4.89 -> 6.11 degrees, reading 10.82 -> 12.62, ball 0.81 -> 2.28, with the last 40 of 96
+frames moved by (2.0, -1.5) px; ``benchmarks/registration.py``).
 
 The check renders every frame from the solved model (normals, albedo and the biquadratic
 coefficients, :func:`predict_frames`) and registers each observed frame to its prediction: one
@@ -18,12 +18,12 @@ times the frames' median departure: the solved model is itself a blend of every 
 well shading pins position depends on the object (a textureless sphere's shading moves with its
 light almost as it moves with the object). Measured on DiLiGenT (96 lights; and random 12- and
 16-light subsets), the right frames' departures: ball median 0.96 px, at most 1.97 px; cat 0.04
-/ 0.13; reading 0.01 / 0.05; every subset at most 0.21. Frames moved by 1-6 px were recovered to
+/ 0.13; reading 0.01 / 0.05; every subset at most 0.06 / 0.26. Frames moved by 1-6 px were recovered to
 0.05-0.15 px on cat and reading; on ball only moves above about 4 px are named.
 
 The normals stage (``align_frames``, default 'auto') then aligns the named frames by their
 shift and solves again, where the object pins position well (the right frames' median departure
-at most :data:`ALIGN_PRECISION`): with the last 40 of 96 frames moved by 2.5 px, DiLiGenT cat
+at most :data:`ALIGN_PRECISION`): with the last 40 of 96 frames moved, DiLiGenT cat
 6.11 -> 4.85 degrees (4.89 unmoved), reading 12.62 -> 10.84 (10.82); leaving the frames out
 instead gave 6.36 and 11.34 (the lights left are lopsided). Captures are never changed: only the
 stack in memory is. Directional lights only (near lights' per-pixel
@@ -36,6 +36,7 @@ import numpy as np
 from scipy import ndimage
 
 from .model import half_vectors
+from .near_lights import PointLights
 
 __all__ = ["check_registration", "predict_frames", "frame_shifts", "moved_frames", "align_frames", "alignable",
            "MIN_SHIFT_PX", "SPREAD_FACTOR", "WORK_PIXELS", "SAMPLE_PIXELS", "MIN_FRAMES", "RESOLVES", "ALIGN_PRECISION"]
@@ -214,8 +215,9 @@ def check_registration(images, result, lights, valid=None, resolve=None):
         The frames the normals were solved from (light intensities divided out; memory-mapped
         is fine: only a window of the object's box is read).
     result : PhotometricResult
-    lights : ndarray (K, 3)
-        The directions the normals were solved with, camera frame.
+    lights : ndarray (K, 3), or PointLights
+        The directions the normals were solved with, camera frame; near lights are not checked
+        (their per-pixel directions are not rebuilt for the rendering).
     valid : ndarray (K, H, W) bool, optional
         False for saturated observations.
     resolve : callable, optional
@@ -234,9 +236,9 @@ def check_registration(images, result, lights, valid=None, resolve=None):
         ``run_from``: the first moved frame when the moved frames are every frame from it to
         the last (the capture's order) and ``resolves`` (solves without the moved frames).
     """
-    lights = np.asarray(lights)
-    if lights.ndim != 2:
+    if isinstance(lights, PointLights) or np.ndim(lights) != 2:
         return {"verdict": "not checked", "reason": "near lights"}
+    lights = np.asarray(lights)
     if len(lights) < MIN_FRAMES:
         return {"verdict": "not checked", "reason": f"fewer than {MIN_FRAMES} frames"}
     mask = np.asarray(result.mask, bool)
@@ -255,7 +257,6 @@ def check_registration(images, result, lights, valid=None, resolve=None):
         return stride * frame_shifts(seen, predict_frames(solved, lights, box, stride), region[window], usable)[0]
 
     shifts = register(result)
-    keep = np.ones(len(lights), bool)
     moved, departure, threshold = moved_frames(shifts)
     resolves = 0
     while moved.size and resolve is not None and resolves < RESOLVES and len(lights) - moved.size >= MIN_FRAMES:
@@ -270,7 +271,7 @@ def check_registration(images, result, lights, valid=None, resolve=None):
             break
     keep = np.ones(len(lights), bool)
     keep[moved] = False
-    offsets = shifts - np.median(shifts[keep] if keep.sum() else shifts, axis=0)
+    offsets = shifts - np.median(shifts[keep] if keep.any() else shifts, axis=0)
     found = {"verdict": "moved" if moved.size else "consistent", "threshold_px": round(threshold, 2),
              "median_departure_px": round(float(np.median(departure[keep] if keep.any() else departure)), 3),
              "largest_px": round(float(departure.max()), 2), "resolves": resolves,

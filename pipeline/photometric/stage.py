@@ -275,10 +275,7 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
         else:
             result, depth = solve(lights, mask), None
     # after the solve: every frame against the model's rendering of it (the object or camera moved?)
-    if run.model == "near":
-        registration = {"verdict": "not checked", "reason": "near lights"}
-    else:
-        result, registration = _register(images, valid, lights, mask, result, method, run.options, align)
+    result, registration = _register(images, valid, lights, mask, result, method, run.options, align)
     return record_normals(session, run, result, channels, near_depth=depth, registration=registration)
 
 
@@ -307,7 +304,7 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     ``channels`` is the :class:`ChannelSums` gathered while the frames were read (the albedo's
     colour); ``near_depth`` :func:`pipeline.photometric.near_depth.refine_near_depth`'s report,
     kept when it ran a pass; ``registration`` :func:`pipeline.photometric.registration.check_registration`'s
-    finding (by frame index), kept by frame id (the tiled stage has none).
+    finding (by frame index), kept by frame id.
     """
     outputs = _write_outputs(session, result, channels)
     counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}

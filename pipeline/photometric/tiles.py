@@ -40,7 +40,6 @@ from .anchor import first_verdict
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)
 from .estimate import check_lights, check_plan_frames, plan_solve, result_from_maps
-from .near_lights import PointLights
 from .registration import check_registration
 from .stage import STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
 
@@ -206,10 +205,7 @@ def _stack_gatherer(folder, solve, gains):
 def _registration(plan, result):
     """The serial stage's registration check on the memory-mapped stack; frames found moved are
     named but not aligned (that would take a second tiled solve)."""
-    lights = plan.solve.solver_lights
-    if isinstance(lights, PointLights):
-        return {"verdict": "not checked", "reason": "near lights"}
-    found = check_registration(np.load(plan.scratch("stack.npy"), mmap_mode="r"), result, lights,
+    found = check_registration(np.load(plan.scratch("stack.npy"), mmap_mode="r"), result, plan.solve.solver_lights,
                                np.load(plan.scratch("valid.npy"), mmap_mode="r"))
     if found.get("moved"):
         found["not_aligned"] = "the tiled stage does not solve again; psrig normals on the session aligns them"
