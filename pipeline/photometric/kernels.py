@@ -596,6 +596,9 @@ def _shape_one(soa, m, b, coeffs, blocks, work, cost, u, cross, moments, e_b, e_
     n0, n1, n2 = b[0] / max(albedo, 1e-300), b[1] / max(albedo, 1e-300), b[2] / max(albedo, 1e-300)
     c0, c1, c2, c3, c4, c5, c6, c7, c8 = (coeffs[0], coeffs[1], coeffs[2], coeffs[3], coeffs[4], coeffs[5],
                                           coeffs[6], coeffs[7], coeffs[8])
+    if not blocks:   # the cost alone (an LM trial's test): one pass without the Jacobian's terms
+        cost[p] = _shape_cost(soa, m, n0, n1, n2, albedo, c0, c1, c2, c3, c4, c5, c6, c7, c8)
+        return
     xs, t, v0, v1, v2, vr, wv = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     u00 = u01 = u02 = u11 = u12 = u22 = g0 = g1 = g2 = total = 0.0
     for j in range(m):
@@ -624,8 +627,6 @@ def _shape_one(soa, m, b, coeffs, blocks, work, cost, u, cross, moments, e_b, e_
         xs[j], t[j], wv[j] = x, wj * s * s, wj
         v0[j], v1[j], v2[j], vr[j] = w0 * s, w1 * s, w2 * s, wj * r * s
     cost[p] = total
-    if not blocks:
-        return
     u[p, 0, 0], u[p, 0, 1], u[p, 0, 2] = u00, u01, u02
     u[p, 1, 0], u[p, 1, 1], u[p, 1, 2] = u01, u11, u12
     u[p, 2, 0], u[p, 2, 1], u[p, 2, 2] = u02, u12, u22
@@ -643,6 +644,21 @@ def _shape_one(soa, m, b, coeffs, blocks, work, cost, u, cross, moments, e_b, e_
         cross[p, 1, i] *= albedo
         cross[p, 2, i] *= albedo
         e_c[p, i] *= albedo
+
+
+def _shape_cost(soa, m, n0, n1, n2, albedo, c0, c1, c2, c3, c4, c5, c6, c7, c8):
+    """One pixel's weighted residual sum of squares, summed as :func:`_shape_one` sums it."""
+    total = 0.0
+    for j in range(m):
+        x = n0 * soa[5, j] + n1 * soa[6, j] + n2 * soa[7, j]
+        s = n0 * soa[2, j] + n1 * soa[3, j] + n2 * soa[4, j]
+        y1, y2, wj = soa[8, j], soa[9, j], soa[1, j]
+        q1 = c3 + c4 * y1 + c5 * y2
+        q2 = c6 + c7 * y1 + c8 * y2
+        rho = (c0 + c1 * y1 + c2 * y2) + x * (q1 + x * q2)
+        r = soa[0, j] - rho * s * albedo
+        total += wj * r * r
+    return total
 
 
 # ----------------------------------------------------------------------------- selection kernels
@@ -880,6 +896,6 @@ _PY = {name: globals()[name] for name in (
     "_moments", "_basis_sums", "_coefficient_system", "_normal_terms", "_penalty_value", "_cost", "_rss_albedo",
     "_hat_trace", "_cholesky_solve", "_cholesky_factor", "_cholesky_substitute", "_select_shared",
     "_select_per_pixel", "_light_rows", "_triplet_solvers", "_select_one", "_consensus", "_lambert", "_cofactors3",
-    "_solve3", "_kth_by_rank", "_kth_by_bits", "_shape_shared", "_shape_per_pixel", "_shape_one")}
+    "_solve3", "_kth_by_rank", "_kth_by_bits", "_shape_shared", "_shape_per_pixel", "_shape_one", "_shape_cost")}
 #: The compiled kernels, built on first use (:func:`kernels`)
 KERNELS = Compiled("photometric-stereo kernels", _build)

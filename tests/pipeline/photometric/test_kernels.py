@@ -123,10 +123,15 @@ def test_compiled_shape_terms_match_numpy(glossy, per_pixel, monkeypatch):
         lights = np.broadcast_to(lights, (len(obs),) + lights.shape).copy()
         h, y = half_vectors(lights)
     shape = np.array([[1.0, 0.2, 0.05], [0.3, 0.1, 0.0], [0.1, 0.0, 0.02]])
-    jit = _terms_function(obs, weights, lights, h, y)(b, shape, True)
+    terms = _terms_function(obs, weights, lights, h, y)
+    jit = terms(b, shape, True)
     ref = _numpy_terms(obs, weights, b, shape, lights, h, y, True, jit["weight_sum"])
     for key in ("cost", "u", "cross", "v", "e_b", "e_c", "basis"):
         np.testing.assert_allclose(jit[key], ref[key], rtol=1e-10, atol=1e-12 * np.max(np.abs(ref[key])), err_msg=key)
+    # the cost alone (an LM trial's test) is its own pass over the packed observations
+    assert terms(b, shape, False) == pytest.approx(ref["cost"], rel=1e-12)
+    assert terms(2 * b, shape, False) == pytest.approx(_numpy_terms(obs, weights, 2 * b, shape, lights, h, y, False,
+                                                                    jit["weight_sum"]), rel=1e-12)
     fast = fit_shared_shape(obs, weights, b, lights, h, y, iterations=8)
     monkeypatch.setenv(ps_kernels.ENV_NO_JIT, "1")
     slow = fit_shared_shape(obs, weights, b, lights, h, y, iterations=8)
