@@ -602,13 +602,8 @@ def _shape_one(soa, m, b, coeffs, blocks, work, cost, u, cross, moments, e_b, e_
     xs, t, v0, v1, v2, vr, wv = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     u00 = u01 = u02 = u11 = u12 = u22 = g0 = g1 = g2 = total = 0.0
     for j in range(m):
-        x = n0 * soa[5, j] + n1 * soa[6, j] + n2 * soa[7, j]
-        s = n0 * soa[2, j] + n1 * soa[3, j] + n2 * soa[4, j]
-        y1, y2, wj = soa[8, j], soa[9, j], soa[1, j]
-        q1 = c3 + c4 * y1 + c5 * y2
-        q2 = c6 + c7 * y1 + c8 * y2
-        rho = (c0 + c1 * y1 + c2 * y2) + x * (q1 + x * q2)
-        r = soa[0, j] - rho * s * albedo
+        x, s, q1, q2, rho, r = _shape_residual(soa, j, n0, n1, n2, albedo, c0, c1, c2, c3, c4, c5, c6, c7, c8)
+        wj = soa[1, j]
         total += wj * r * r
         d = s * (q1 + 2.0 * x * q2)
         j0 = rho * soa[2, j] + d * (soa[5, j] - x * n0)
@@ -650,15 +645,21 @@ def _shape_cost(soa, m, n0, n1, n2, albedo, c0, c1, c2, c3, c4, c5, c6, c7, c8):
     """One pixel's weighted residual sum of squares, summed as :func:`_shape_one` sums it."""
     total = 0.0
     for j in range(m):
-        x = n0 * soa[5, j] + n1 * soa[6, j] + n2 * soa[7, j]
-        s = n0 * soa[2, j] + n1 * soa[3, j] + n2 * soa[4, j]
-        y1, y2, wj = soa[8, j], soa[9, j], soa[1, j]
-        q1 = c3 + c4 * y1 + c5 * y2
-        q2 = c6 + c7 * y1 + c8 * y2
-        rho = (c0 + c1 * y1 + c2 * y2) + x * (q1 + x * q2)
-        r = soa[0, j] - rho * s * albedo
-        total += wj * r * r
+        r = _shape_residual(soa, j, n0, n1, n2, albedo, c0, c1, c2, c3, c4, c5, c6, c7, c8)[5]
+        total += soa[1, j] * r * r
     return total
+
+
+def _shape_residual(soa, j, n0, n1, n2, albedo, c0, c1, c2, c3, c4, c5, c6, c7, c8):
+    """Observation j's x = n . h, s = n . l, the biquadratic's slope terms q1, q2, its rho and
+    the residual obs - albedo rho s, for the unit normal (n0, n1, n2)."""
+    x = n0 * soa[5, j] + n1 * soa[6, j] + n2 * soa[7, j]
+    s = n0 * soa[2, j] + n1 * soa[3, j] + n2 * soa[4, j]
+    y1, y2 = soa[8, j], soa[9, j]
+    q1 = c3 + c4 * y1 + c5 * y2
+    q2 = c6 + c7 * y1 + c8 * y2
+    rho = (c0 + c1 * y1 + c2 * y2) + x * (q1 + x * q2)
+    return x, s, q1, q2, rho, soa[0, j] - rho * s * albedo
 
 
 # ----------------------------------------------------------------------------- selection kernels
@@ -896,6 +897,6 @@ _PY = {name: globals()[name] for name in (
     "_moments", "_basis_sums", "_coefficient_system", "_normal_terms", "_penalty_value", "_cost", "_rss_albedo",
     "_hat_trace", "_cholesky_solve", "_cholesky_factor", "_cholesky_substitute", "_select_shared",
     "_select_per_pixel", "_light_rows", "_triplet_solvers", "_select_one", "_consensus", "_lambert", "_cofactors3",
-    "_solve3", "_kth_by_rank", "_kth_by_bits", "_shape_shared", "_shape_per_pixel", "_shape_one", "_shape_cost")}
+    "_solve3", "_kth_by_rank", "_kth_by_bits", "_shape_shared", "_shape_per_pixel", "_shape_one", "_shape_cost", "_shape_residual")}
 #: The compiled kernels, built on first use (:func:`kernels`)
 KERNELS = Compiled("photometric-stereo kernels", _build)
