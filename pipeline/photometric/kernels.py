@@ -666,7 +666,7 @@ def _shape_residual(soa, j, n0, n1, n2, albedo, c0, c1, c2, c3, c4, c5, c6, c7, 
 def _select_shared(obs, lights, base, k_high, k_low, iterations, min_obs, triplets, floor, w_out, b_out):
     """:func:`_select_one` for every pixel under shared lights (K, 3)."""
     n_pix, k = obs.shape
-    scratch, sort32, packed = np.empty(k), np.empty(k, np.float32), np.empty((4, k), np.float32)
+    scratch, sort32, packed = np.empty(k), np.empty(k, np.float32), np.empty((5, k), np.float32)
     lt, solvers = np.empty((3, k)), np.empty((len(triplets), 10))
     _light_rows(lights, lt)
     _triplet_solvers(lt, triplets, solvers)   # the same for every pixel
@@ -678,7 +678,7 @@ def _select_shared(obs, lights, base, k_high, k_low, iterations, min_obs, triple
 def _select_per_pixel(obs, lights, base, k_high, k_low, iterations, min_obs, triplets, floor, w_out, b_out):
     """:func:`_select_one` for every pixel under per-pixel lights (N, K, 3)."""
     n_pix, k = obs.shape
-    scratch, sort32, packed = np.empty(k), np.empty(k, np.float32), np.empty((4, k), np.float32)
+    scratch, sort32, packed = np.empty(k), np.empty(k, np.float32), np.empty((5, k), np.float32)
     lt, solvers = np.empty((3, k)), np.empty((len(triplets), 10))
     for p in range(n_pix):
         _light_rows(lights[p], lt)
@@ -754,7 +754,9 @@ def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, solver
 
 
 def _consensus(o, lt, lit, m, triplets, solvers, scratch, packed):
-    """The least-median-of-squares triplet: its b and median squared residual (inf if none).
+    """The least-median-of-squares triplet: its b and median squared residual (inf if none), the
+    median over the scored residuals the triplet does not fit (its own are zero), as
+    :func:`pipeline.photometric.selection.consensus_weights`.
 
     The triplets are ranked in float32 (``scratch`` and ``packed`` are float32): twice the
     residuals per vector instruction, and a ranking needs no more (the winner's b is float64).
@@ -762,18 +764,19 @@ def _consensus(o, lt, lit, m, triplets, solvers, scratch, packed):
     k = len(o)
     # the lit observations, contiguous: every triplet's residuals are a branch-free pass
     # (at most _SCORED of them, evenly spread: the median of a spread subset ranks triplets as well)
-    oc, l0, l1, l2 = packed[0], packed[1], packed[2], packed[3]
+    oc, l0, l1, l2, in_scored = packed[0], packed[1], packed[2], packed[3], packed[4]
     scored = min(m, _SCORED)
     c = 0
     rank = 0
     for j in range(k):
+        in_scored[j] = 0.0
         if lit[j] > 0.0:
             if c < scored and rank == (c * m) // scored:
                 oc[c], l0[c], l1[c], l2[c] = o[j], lt[0, j], lt[1, j], lt[2, j]
+                in_scored[j] = 1.0
                 c += 1
             rank += 1
     m = scored
-    half = m // 2
     best = np.float32(np.inf)
     b0 = b1 = b2 = 0.0
     for t in range(len(triplets)):
@@ -790,6 +793,9 @@ def _consensus(o, lt, lit, m, triplets, solvers, scratch, packed):
         if not (math.isfinite(x0) and math.isfinite(x1) and math.isfinite(x2) and x2 > 0.0):
             continue
         y0, y1, y2 = np.float32(x0), np.float32(x1), np.float32(x2)
+        # the median of the residuals the triplet does not fit: its own scored ones are zero
+        fitted = int(in_scored[i0] + in_scored[i1] + in_scored[i2])
+        half = min(fitted + (m - fitted) // 2, m - 1)
         below = 0
         for j in range(m):
             r = oc[j] - (y0 * l0[j] + y1 * l1[j] + y2 * l2[j])

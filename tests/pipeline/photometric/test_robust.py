@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pipeline.photometric import STATUS, estimate_normals, normals_warnings
-from pipeline.photometric.selection import MIN_REJECT_OBS, consensus_triplets, select_robust, shadow_weights
+from pipeline.photometric.selection import consensus_triplets, select_robust, shadow_weights
 
 from tests.pipeline.photometric.ps_synthetic import angular_error_deg, cook_torrance_images, hemisphere_lights, sphere_normals
 
@@ -40,50 +40,50 @@ def test_the_start_withstands_outliers_that_break_least_squares():
     assert np.mean(robust[wrong] > 0) < 0.5 * np.mean(plain[wrong] > 0)
 
 
-def test_too_few_observations_to_judge_keep_them_all():
-    # four or five lit observations: the start's least median is a residual its triplet fits
-    # exactly, so it used to keep that triplet alone whatever the noise; now they are all kept,
-    # and from MIN_REJECT_OBS on a gross outlier is still rejected
-    lights = hemisphere_lights(5, seed=3, min_elevation_deg=50)
-    normals, obs = lambertian_pixels(200, lights, seed=4)
-    noisy = obs + np.random.default_rng(5).normal(0, 0.004, obs.shape)
-    base = shadow_weights(noisy)
-    few = base.sum(axis=1) < MIN_REJECT_OBS
-    assert few.mean() > 0.9
-    weights, b = select_robust(noisy, lights, base)
-    np.testing.assert_array_equal(weights[few], base[few])
-    six = hemisphere_lights(8, seed=3, min_elevation_deg=50)
-    normals, obs = lambertian_pixels(200, six, seed=4)
+@pytest.mark.parametrize("count", [4, 5, 6, 8])
+def test_with_few_lights_noise_is_not_taken_for_outliers(count):
+    # the start's median is over the residuals its triplet does not fit: with the triplet's own
+    # three (zero) counted, the median of 4-8 residuals was at or next to those zeros, and noise
+    # was rejected (measured on this data: 76-88 % of the observations kept, now 97-100 %)
+    lights = hemisphere_lights(count, seed=3, min_elevation_deg=50)
+    normals, obs = lambertian_pixels(300, lights, seed=4)
+    obs = obs + np.random.default_rng(4).normal(0, 0.01, obs.shape)
+    base = shadow_weights(obs)
+    weights, _ = select_robust(obs, lights, base)
+    full = base.sum(axis=1) == count
+    assert full.mean() > 0.9
+    assert np.mean(weights[full] > 0) > 0.96
+
+
+def test_with_eight_lights_a_frame_far_off_is_still_rejected():
+    lights = hemisphere_lights(8, seed=3, min_elevation_deg=50)
+    normals, obs = lambertian_pixels(300, lights, seed=4)
+    obs = obs + np.random.default_rng(4).normal(0, 0.004, obs.shape)
     obs[:, 2] *= 2.5   # one frame far too bright at every pixel
     base = shadow_weights(obs)
-    weights, _ = select_robust(obs, six, base)
-    judged = base.sum(axis=1) >= MIN_REJECT_OBS
-    assert judged.mean() > 0.9 and np.mean(weights[judged, 2] == 0) > 0.95
+    weights, _ = select_robust(obs, lights, base)
+    full = base.sum(axis=1) == 8
+    assert full.mean() > 0.9 and np.mean(weights[full, 2] == 0) > 0.95
+    assert np.mean(np.delete(weights[full], 2, axis=1) > 0) > 0.95
 
 
-def test_with_four_or_five_lights_every_lit_observation_beats_the_least_median_triplet(monkeypatch):
-    # random 4- and 5-light sets under a narrow cone, noise: the least-median triplet alone (the
-    # rule before MIN_REJECT_OBS) is worse on every set (measured 0.9-1.9 degrees), and the
-    # default is no worse than plain Lambert over them (measured 4.87 against 4.92 degrees; on
-    # DiLiGenT subsets 12.30 against 12.47 with 4 lights, 11.49 against 12.06 with 5)
-    import pipeline.photometric.selection as selection
-
+def test_with_few_lights_the_default_beats_lambert_on_noisy_spheres():
+    # random 4- to 8-light sets under a narrow cone with noise (measured: the default is better
+    # on 7 of these 8, 3.90 against 4.03 degrees on average; on DiLiGenT subsets see
+    # docs/photometric-stereo.md, "Few lights")
     normals, mask = sphere_normals(48)
-    errors = {"default": [], "triplet": [], "lambert": []}
-    for count, seed in ((4, 11), (4, 12), (5, 12), (5, 13), (5, 14)):
+    default_errors, lambert_errors = [], []
+    for count, seed in ((4, 11), (4, 12), (5, 12), (5, 13), (5, 14), (6, 15), (6, 16), (8, 17)):
         lights = hemisphere_lights(count, seed=seed, min_elevation_deg=50)
         images = cook_torrance_images(normals, mask, lights, roughness=0.4, noise=0.004)
-        found = {"default": estimate_normals(images, lights, mask),
-                 "lambert": estimate_normals(images, lights, mask, method="lambert")}
-        monkeypatch.setattr(selection, "MIN_REJECT_OBS", 0)
-        found["triplet"] = estimate_normals(images, lights, mask)
-        monkeypatch.undo()
-        both = np.logical_and.reduce([mask & (np.linalg.norm(r.normals, axis=2) > 0) for r in found.values()])
+        default = estimate_normals(images, lights, mask)
+        plain = estimate_normals(images, lights, mask, method="lambert")
+        both = mask & (np.linalg.norm(default.normals, axis=2) > 0) & (np.linalg.norm(plain.normals, axis=2) > 0)
         assert both.sum() > 0.9 * mask.sum()
-        for key, result in found.items():
-            errors[key].append(angular_error_deg(result.normals, normals, both).mean())
-        assert errors["default"][-1] < errors["triplet"][-1] - 0.5, (count, seed)
-    assert np.mean(errors["default"]) <= np.mean(errors["lambert"])
+        default_errors.append(angular_error_deg(default.normals, normals, both).mean())
+        lambert_errors.append(angular_error_deg(plain.normals, normals, both).mean())
+    assert np.mean(default_errors) < np.mean(lambert_errors)
+    assert np.sum(np.array(default_errors) > np.array(lambert_errors)) <= 1
 
 
 def test_triplets_are_fixed_and_cover_small_light_sets():
