@@ -81,7 +81,8 @@ def main(argv=None):
                 f"{worse} subset(s) (target 0): {'PASS' if worse == 0 else 'MISS'}")
         if count >= GAIN_FROM:
             gain = 1 - means["biquadratic"] / means["lambert-low"]
-            line += f"; default {gain:.1%} below lambert-low (target >= 5 %): {'PASS' if gain >= GAIN_TARGET else 'MISS'}"
+            verdict = "PASS" if gain >= GAIN_TARGET else "MISS"
+            line += f"; default {gain:.1%} below lambert-low (target >= 5 %): {verdict}"
         print(line, flush=True)
 
 

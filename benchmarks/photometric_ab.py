@@ -12,8 +12,8 @@ version's median wall time and its ratio to the baseline timed alongside.
 
 REV's ``pipeline`` package is taken with ``git archive`` into a temporary folder and imported
 under another name (``pipeline_rev``); this works because the package imports itself only
-relatively (checked: a revision that does otherwise is refused). Its kernels compile on the
-first run if numba's cache has none for them (not timed).
+relatively (checked: a revision that does otherwise is refused). Its kernels compile on its
+first run, untimed: the copy is new each time, so numba's on-disk cache never has them.
 """
 
 import argparse
@@ -66,7 +66,8 @@ def compare(name, images, lights, mask, old, repeat):
             times[key].append(time.perf_counter() - start)
         baselines.append(pinv_seconds(images, lights, mask))
     old_s, new_s, base = np.array(times["old"]), np.array(times["new"]), float(np.median(baselines))
-    print(f"{name:8} identical normals {str(same):5}  old {np.median(old_s):6.3f} s ({np.median(old_s) / base:4.0f} x)  "
+    print(f"{name:8} identical normals {str(same):5}  "
+          f"old {np.median(old_s):6.3f} s ({np.median(old_s) / base:4.0f} x)  "
           f"new {np.median(new_s):6.3f} s ({np.median(new_s) / base:4.0f} x)  pinv {base * 1e3:5.2f} ms  "
           f"new / old {np.median(new_s / old_s):.3f} (pairs {np.percentile(new_s / old_s, 25):.3f}-"
           f"{np.percentile(new_s / old_s, 75):.3f})", flush=True)

@@ -903,6 +903,7 @@ _PY = {name: globals()[name] for name in (
     "_moments", "_basis_sums", "_coefficient_system", "_normal_terms", "_penalty_value", "_cost", "_rss_albedo",
     "_hat_trace", "_cholesky_solve", "_cholesky_factor", "_cholesky_substitute", "_select_shared",
     "_select_per_pixel", "_light_rows", "_triplet_solvers", "_select_one", "_consensus", "_lambert", "_cofactors3",
-    "_solve3", "_kth_by_rank", "_kth_by_bits", "_shape_shared", "_shape_per_pixel", "_shape_one", "_shape_cost", "_shape_residual")}
+    "_solve3", "_kth_by_rank", "_kth_by_bits", "_shape_shared", "_shape_per_pixel", "_shape_one", "_shape_cost",
+    "_shape_residual")}
 #: The compiled kernels, built on first use (:func:`kernels`)
 KERNELS = Compiled("photometric-stereo kernels", _build)

@@ -152,10 +152,10 @@ def consensus_weights(obs, lights, base, triplets, k_in=2.5, scale_floor=0.0):
     residuals at or beside those zeros, so that noise was rejected (random DiLiGenT subsets, 30
     per light count, on the pixels every method solves: 4 lights 13.71 -> 12.15 degrees, 5 13.15
     -> 11.29, 6 10.16 -> 9.57, 8 8.70 -> 8.10, 12 7.24 -> 7.14; the 96-light objects within
-    0.03; docs/photometric-stereo.md, "Few lights"). The kept
-    observations are those within ``k_in`` times the robust scale of that median (Rousseeuw's
-    1.4826 (1 + 5 / (n - 3)) sqrt(median)). Pixels with no usable triplet keep ``base``.
-    Returns 0/1 weights (N, K), a subset of base.
+    0.03; docs/photometric-stereo.md, "Few lights"). The kept observations are those within
+    ``k_in`` times the robust scale of that median (Rousseeuw's 1.4826 (1 + 5 / (n - 3))
+    sqrt(median)). Pixels with no usable triplet keep ``base``. Returns 0/1 weights (N, K), a
+    subset of base.
     """
     n, k = obs.shape
     lit = base > 0

@@ -128,7 +128,7 @@ def test_compiled_shape_terms_match_numpy(glossy, per_pixel, monkeypatch):
     ref = _numpy_terms(obs, weights, b, shape, lights, h, y, True, jit["weight_sum"])
     for key in ("cost", "u", "cross", "v", "e_b", "e_c", "basis"):
         np.testing.assert_allclose(jit[key], ref[key], rtol=1e-10, atol=1e-12 * np.max(np.abs(ref[key])), err_msg=key)
-    # the cost alone (an LM trial's test) is its own pass over the packed observations
+    # the cost alone (an LM trial's test) is its own pass, without the Jacobian's terms
     assert terms(b, shape, False) == pytest.approx(ref["cost"], rel=1e-12)
     assert terms(2 * b, shape, False) == pytest.approx(_numpy_terms(obs, weights, 2 * b, shape, lights, h, y, False,
                                                                     jit["weight_sum"]), rel=1e-12)
