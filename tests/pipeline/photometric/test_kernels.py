@@ -152,3 +152,20 @@ def test_compiled_fit_under_per_pixel_lights_matches_shared(glossy):
     each = ps_kernels.fit_pixels_jit(obs, weights, b, per_pixel, hp, yp, penalty, MAX_ITER, TOL_DEG)
     assert row_angles_deg(shared[0], each[0]).max() < 1e-5   # arccos resolves about 1e-6 degrees here
     np.testing.assert_allclose(each[2], shared[2], rtol=1e-9)
+
+
+def test_kth_by_bits_is_the_kth_smallest():
+    # the MAD's median: exact (the bracket stops once one value is left in it), with ties and
+    # zeros, over values spread across many orders of magnitude as residuals are
+    compiled = ps_kernels.kernels()
+    if compiled is None:
+        pytest.skip("compiled kernels unavailable")
+    kth_by_bits = compiled["_kth_by_bits"]
+    rng = np.random.default_rng(3)
+    for trial in range(3000):
+        n = int(rng.integers(1, 97))
+        values = np.abs(rng.standard_normal(96) * 10.0 ** rng.uniform(-6, 2, 96)).astype(np.float32)
+        if trial % 3 == 0:
+            values = np.round(values, 1)
+        kth = int(rng.integers(0, n))
+        assert kth_by_bits(values, values.view(np.int32), n, kth) == np.sort(values[:n])[kth], (n, kth)
