@@ -254,7 +254,7 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     flat_images, flat_valid = images.reshape(k, -1), None if valid is None else valid.reshape(k, -1)
     pixels = np.flatnonzero(mask)
     plan = check_plan_frames(plan, gatherer(flat_images, flat_valid, plan.solver_lights), pixels)
-    runs = []
+    runs, probes = [], []
     # the anchor's corrected run keeps the first run's selection (reuse_selection)
     kept = KeptSelection(pixels, k) if plan.anchor else None
 
@@ -270,7 +270,8 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         # The anchor's runs after the first (other lights) prepare before their chunks, on every
         # core: the corrected run selects nothing anew (the first run's selection is kept), the
         # probe's chunks are few. Both keep the first run's single-material verdict rather than
-        # testing again (about a third of a preparation).
+        # testing again (about a third of a preparation). Their shared shape starts from the last
+        # run's (warm): the lights differ by a few percent of their polar angles.
         gather = gatherer(flat_images, flat_valid, run_lights, gains=plan.gains)
         options = dict(plan.options, threads=workers or os.cpu_count() or 1)
         check = runs[0].shared.get("shape_check")
@@ -278,6 +279,7 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
             options["shape_check"] = False
         if reuse is not None:
             options["chosen"] = reuse.get
+        options["warm"] = (probes or runs)[-1].context
         with single_threaded():
             context = prepare_context(plan.solver, gather, pixels, options)
         return dict(context, shape_check=check) if options.get("shape_check") is False and context else context
@@ -297,7 +299,8 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         # at 1.05 against 0.14 refitted). It selects afresh: its median mismatch is the secant's
         # slope, and the kept selection moved it (through the shared shape's sample) by 0.2
         # degrees on ball's session, its root 1.050 -> 1.035 and the error 0.87 -> 1.06 degrees
-        return run(run_lights, on=np.sort(runs[0].peaks), context=later_context(run_lights)).mismatch
+        probes.append(run(run_lights, on=np.sort(runs[0].peaks), context=later_context(run_lights)))
+        return probes[-1].mismatch
 
     options = dict(plan.options, frame_check=plan.gain_check)
     if plan.anchor:

@@ -21,8 +21,11 @@ from .pixel_fit import fit_pixels
 __all__ = ["fit_shared_shape", "single_material_check", "ONE_MATERIAL_RATIO", "MIN_CHECK_OBS"]
 
 
-def fit_shared_shape(obs, weights, b, lights, h, y, iterations=15, threads=1):
+def fit_shared_shape(obs, weights, b, lights, h, y, iterations=15, threads=1, start=None):
     """One biquadratic shape (3, 3) for all given pixels, fitted jointly with their b (N, 3).
+
+    ``b`` is the per-pixel start; the shape starts constant, or at ``start`` (3, 3) (a shape
+    fitted before, e.g. under slightly other lights).
 
     Levenberg-Marquardt over the 9 shared and 3N per-pixel unknowns; the per-pixel 3 x 3 blocks
     are eliminated (Schur complement), so each step solves one 9 x 9 system. The shape is
@@ -31,13 +34,16 @@ def fit_shared_shape(obs, weights, b, lights, h, y, iterations=15, threads=1):
     are unavailable (then numpy, :func:`_numpy_terms`, the reference), on ``threads`` threads.
     """
     with futures.ThreadPoolExecutor(threads) if threads > 1 else contextlib.nullcontext() as executor:
-        return _fit(_terms_function(obs, weights, lights, h, y, executor, threads), b, iterations)
+        return _fit(_terms_function(obs, weights, lights, h, y, executor, threads), b, iterations, start)
 
 
-def _fit(terms, b, iterations):
+def _fit(terms, b, iterations, start=None):
     """fit_shared_shape's Levenberg-Marquardt loop over ``terms`` (:func:`_terms_function`)."""
-    coeffs = np.zeros((3, 3))
-    coeffs[0, 0] = 1.0
+    if start is None:
+        coeffs = np.zeros((3, 3))
+        coeffs[0, 0] = 1.0
+    else:
+        coeffs = np.array(start, float).reshape(3, 3)
     cost = terms(b, coeffs, False)
     blocks = None
     damping = 1e-3

@@ -137,6 +137,31 @@ def test_a_correction_keeps_the_first_runs_selection(monkeypatch):
     assert anchored.options["shape_check"]["one_material"]
 
 
+def test_later_runs_start_their_shared_shape_from_the_last_one(monkeypatch):
+    # the probe starts from the first run's shape, the corrected run from the probe's, for
+    # WARM_ITERATIONS steps; the first run fits from the constant shape for SHAPE_ITERATIONS
+    from pipeline.photometric import biquadratic
+
+    starts = []
+    fit = biquadratic.fit_shared_shape
+    def recording(*args, start=None, iterations=None, **kwargs):
+        shape, b = fit(*args, start=start, iterations=iterations, **kwargs)
+        starts.append((None if start is None else np.array(start), iterations, shape))
+        return shape, b
+
+    monkeypatch.setattr(biquadratic, "fit_shared_shape", recording)
+    images, normals, mask = render(1.05, roughness=0.05)
+    anchored = estimate_normals(images, NARROW, mask)
+    assert anchored.options["anchor"] == "corrected"
+    assert [iterations for _, iterations, _ in starts] == [biquadratic.SHAPE_ITERATIONS] + \
+        [biquadratic.WARM_ITERATIONS] * 2
+    assert starts[0][0] is None
+    for (_, _, before), (start, _, _) in zip(starts, starts[1:]):
+        np.testing.assert_array_equal(start, before)
+    e_anchored = angular_error_deg(anchored.normals, normals, mask).mean()
+    assert e_anchored < 0.4 and abs(anchored.options["cone_scale"] - 1.05) < 0.01, anchored.options
+
+
 def test_kept_selection_round_trips_packed_rows():
     from pipeline.photometric.engine import KeptSelection
 
