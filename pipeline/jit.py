@@ -31,7 +31,7 @@ import threading
 import time
 import warnings
 
-__all__ = ["Compiled", "ENV_NO_JIT", "VECTORISE", "jit_allowed", "njit", "single_threaded"]
+__all__ = ["Compiled", "ENV_NO_JIT", "NOTICE_SECONDS", "VECTORISE", "jit_allowed", "njit", "single_threaded"]
 
 ENV_NO_JIT = "PSRIG_NO_JIT"
 
@@ -60,6 +60,26 @@ def njit(func, fastmath=False):
                       error_model="numpy")(func)
 
 
+#: a build that takes longer than this is a compilation (loading from numba's cache takes about
+#: 0.5 s), which is said on stderr (:meth:`Compiled.get`)
+NOTICE_SECONDS = 2.0
+
+
+def _say(text):
+    """``psrig: text`` on stderr, unless progress is off (``psrig run -q``); above a progress bar."""
+    from .progress import progress_mode
+
+    mode = progress_mode()
+    if mode == "off":
+        return
+    if mode == "bar":
+        from tqdm import tqdm
+
+        tqdm.write(f"psrig: {text}", file=sys.stderr)
+    else:
+        print(f"psrig: {text}", file=sys.stderr, flush=True)
+
+
 class Compiled:
     """Something compiled lazily by ``build()`` (any object: a dispatcher, a dict of them).
 
@@ -84,12 +104,27 @@ class Compiled:
         return jit_allowed() and not self.failed
 
     def get(self):
-        """The compiled object, or None when the numpy implementation must be used."""
+        """The compiled object, or None when the numpy implementation must be used.
+
+        A build that takes longer than :data:`NOTICE_SECONDS` (a compilation, not a load from
+        numba's cache) says so on stderr while it runs, and when it ends: meanwhile no progress
+        moves, and a run that seems to hang is worse than one that says why it waits.
+        """
         if not self.enabled():
             return None
         with self._lock:
             if self._value is None and not self.failed:
                 start = time.perf_counter()
+                said = threading.Event()
+
+                def announce():
+                    _say(f"compiling the {self.what} (the first run on this machine or after an update; "
+                         f"cached for later runs)")
+                    said.set()
+
+                notice = threading.Timer(NOTICE_SECONDS, announce)
+                notice.daemon = True
+                notice.start()
                 try:
                     self._value = self.build()
                 except Exception as exc:  # any failure here must degrade to numpy, never stop a run
@@ -97,7 +132,11 @@ class Compiled:
                     warnings.warn(f"psrig: compiled {self.what} unavailable, using numpy "
                                   f"({type(exc).__name__}: {exc})", RuntimeWarning, stacklevel=3)
                     return None
+                finally:
+                    notice.cancel()
                 self.seconds = time.perf_counter() - start
+                if said.is_set():
+                    _say(f"compiled the {self.what} in {self.seconds:.0f} s")
         return self._value
 
     def reset(self):

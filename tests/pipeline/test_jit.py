@@ -38,3 +38,35 @@ def test_single_threaded_looks_again_after_an_import(monkeypatch):
     with single_threaded():
         pass
     assert jit._POOLS["controller"] is not kept
+
+
+def _slow_build(seconds):
+    import time
+
+    def build():
+        time.sleep(seconds)
+        return "built"
+    return build
+
+
+@pytest.mark.parametrize("mode", ["lines", "bar"])
+def test_a_long_compilation_says_so_while_it_runs(monkeypatch, capsys, mode):
+    # a first run compiles for ~15 s while no progress moves: it says why it waits, and when done
+    from pipeline import jit
+
+    monkeypatch.setattr(jit, "NOTICE_SECONDS", 0.05)
+    monkeypatch.setenv("PSRIG_PROGRESS", mode)
+    assert jit.Compiled("test kernels", _slow_build(0.4)).get() == "built"
+    err = capsys.readouterr().err
+    assert "psrig: compiling the test kernels (the first run on this machine" in err
+    assert "psrig: compiled the test kernels in 0 s" in err
+
+
+@pytest.mark.parametrize("mode, build", [("lines", _slow_build(0.0)), ("off", _slow_build(0.4))])
+def test_a_load_from_the_cache_or_a_quiet_run_says_nothing(monkeypatch, capsys, mode, build):
+    from pipeline import jit
+
+    monkeypatch.setattr(jit, "NOTICE_SECONDS", 0.2 if mode == "lines" else 0.05)
+    monkeypatch.setenv("PSRIG_PROGRESS", mode)
+    assert jit.Compiled("test kernels", build).get() == "built"
+    assert capsys.readouterr().err == ""
