@@ -23,7 +23,7 @@ from .positions import frame_offset
 from .reuse import reuse_calibration
 from .sphere import calibrate_sphere
 
-__all__ = ["calibrate_session", "OVERLAY", "OVERLAY_OUTLINE"]
+__all__ = ["calibrate_session", "lights_without_spheres", "OVERLAY", "OVERLAY_OUTLINE"]
 
 OVERLAY = "calibration/overlay.png"
 OVERLAY_OUTLINE = "calibration/overlay_outline.png"
@@ -209,6 +209,26 @@ def _session_sphere_mask(session, circle, sphere_mask, outline):
     return None
 
 
+def lights_without_spheres(session):
+    """The lights of a session that has no sphere frames, and a note saying which they are.
+
+    The rig's nominal directions, recorded at capture (``--no-sphere``), are written as
+    ``calibration/lights.yaml`` (positions left out: a rig file's are in its own units, not the
+    session frame near lights need); lights imported into it are kept. Both ``psrig calibrate``
+    and ``psrig run`` take this one rule. StageError when there are neither.
+    """
+    recorded = session.manifest["lights"]
+    if recorded.get("source") == "nominal" and recorded.get("directions"):
+        write_lights_yaml(session.path(LIGHTS), LightSet(
+            recorded["directions"], source=f"nominal, uncalibrated: {recorded.get('origin', 'rig')}"))
+        return "no sphere frames: the rig's nominal (uncalibrated) lights are used"
+    if session.path(LIGHTS).is_file():
+        return f"no sphere frames: the imported {LIGHTS} is kept"
+    raise StageError(f"{session.root}: no sphere frames and no {LIGHTS}; capture a chrome sphere, import "
+                     f"lights (psrig import images --lights FILE) or take another session's (psrig calibrate "
+                     f"SESSION --from CAL)")
+
+
 def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline=None, force=False,
                       from_session=None, echo=print):
     """Calibrate the lights of ``session`` from its sphere frames.
@@ -244,8 +264,8 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
 
     Returns
     -------
-    SphereCalibration, or None when skipped (up to date, or imported lights and no sphere
-    frames).
+    SphereCalibration, or None when skipped (up to date, or no sphere frames: then
+    :func:`lights_without_spheres`).
     """
     if from_session is not None:
         if circle is not None or sphere_mask is not None or outline:
@@ -254,10 +274,8 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
     # one frame per light and kind: an exposure bracket is its merged frame
     frames = sorted(session.stage_frames("sphere"), key=lambda f: f["light"])
     if not frames:
-        if session.path(LIGHTS).is_file():
-            echo(f"{session.root}: no sphere frames; keeping the imported {LIGHTS}")
-            return None
-        raise StageError(f"{session.root}: no sphere frames and no {LIGHTS}")
+        echo(f"{session.root}: {lights_without_spheres(session)}")
+        return None
     stored_mask = _session_sphere_mask(session, circle, sphere_mask, outline)
     outlines = _session_outlines(session, circle, sphere_mask or stored_mask, outline)
     if outline is False and not session.frames("outline"):

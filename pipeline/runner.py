@@ -65,21 +65,6 @@ def _decode(session, options, force, jobs):
     return "; ".join(describe_record(record)) if record is not before else ""
 
 
-def _nominal_lights(session):
-    """Write the rig's nominal light directions (recorded at capture) as the session's lights,
-    for sessions captured without sphere frames; returns a note, or None when there are none."""
-    from .lightsio import LightSet, write_lights_yaml
-
-    recorded = session.manifest["lights"]
-    if recorded.get("source") != "nominal" or not recorded.get("directions"):
-        return None
-    # positions are left out: a rig file's positions are in its own units (e.g. mm), not the
-    # session frame the normals stage needs for near lights
-    write_lights_yaml(session.path(LIGHTS), LightSet(
-        recorded["directions"], source=f"nominal, uncalibrated: {recorded.get('origin', 'rig')}"))
-    return "no sphere frames: the rig's nominal (uncalibrated) lights are used"
-
-
 def _calibrate(session, options, force, jobs):
     if options.get("from_session"):   # one sphere session's calibration for this one
         from calibration import calibrate_session
@@ -87,13 +72,9 @@ def _calibrate(session, options, force, jobs):
         calibrate_session(session, force=force, echo=lambda line: None, **options)
         return f"lights from {options['from_session']}"
     if not session.frames("sphere"):
-        if session.path(LIGHTS).is_file() and session.manifest["lights"].get("source") != "nominal":
-            return "lights imported, no sphere frames"
-        note = _nominal_lights(session)
-        if note:
-            return note
-        raise StageError(f"{session.root}: no sphere frames and no {LIGHTS}; capture a chrome "
-                         "sphere or import lights (psrig import images --lights FILE)")
+        from calibration import lights_without_spheres
+
+        return lights_without_spheres(session)
     from calibration import calibrate_session
 
     # what the calibration says (flagged lights) becomes the stage's note; its own "is up to

@@ -23,7 +23,7 @@ def test_first_run_runs_all_then_everything_is_up_to_date(tmp_path, stubbed):
     lines = []
     first = runner.run_session(session.root, echo=lines.append)
     assert ran(first) == ["decode", "normals", "integrate", "report"]
-    assert first[1].note.startswith("lights imported")
+    assert first[1].note == "no sphere frames: the imported calibration/lights.yaml is kept"
     assert any(line.startswith("normals: ran in") for line in lines)
     second = runner.run_session(session.root)
     assert ran(second) == []
@@ -117,3 +117,17 @@ def test_run_keeps_the_settings_a_stage_was_run_with_by_hand(tmp_path):
     assert ran(runner.run_session(root, options={"normals": {"method": "lambert"}}))[0] == "normals"
     params = Session.open(root).stage("normals")["params"]
     assert params["method"] == "lambert" and params["t_low"] == 0.3
+
+
+def test_no_sphere_frames_and_no_lights_is_one_message_for_run_and_calibrate(tmp_path, stubbed):
+    from calibration import calibrate_session
+
+    session = make_session(tmp_path)
+    session.path("calibration/lights.yaml").unlink()
+    with pytest.raises(StageError) as run_error:
+        runner.run_session(session.root, stop="calibrate")
+    with pytest.raises(StageError) as calibrate_error:
+        calibrate_session(session)
+    expected = f"{session.root}: no sphere frames and no calibration/lights.yaml; capture a chrome sphere"
+    assert expected in str(run_error.value) and "--from CAL" in str(run_error.value)
+    assert str(calibrate_error.value).startswith(expected)

@@ -392,3 +392,19 @@ def test_session_without_sphere_frames_is_processed_with_the_nominal_lights(tmp_
     assert "nominal" in lights.source
     assert np.allclose(lights.directions, rig8.lights.directions, atol=1e-7)
     assert session.path("normals/normals.exr").is_file()
+
+
+def test_calibrate_takes_the_nominal_lights_as_run_does(tmp_path, rig8):
+    # psrig calibrate and psrig run share one rule for a session without sphere frames: the
+    # rig's nominal lights, said as such (calibrate refused them, and called them imported once
+    # run had written them)
+    from calibration import calibrate_session
+    from pipeline.lightsio import read_lights
+
+    session = capture_session(tmp_path / "s", rig8, sphere=False, **QUIET)
+    said = []
+    for _ in range(2):   # before any lights.yaml, and with the one it wrote
+        assert calibrate_session(session, echo=said.append) is None
+        lights = read_lights(session.path("calibration/lights.yaml"))
+        assert "nominal" in lights.source and np.allclose(lights.directions, rig8.lights.directions, atol=1e-7)
+    assert said == [f"{session.root}: no sphere frames: the rig's nominal (uncalibrated) lights are used"] * 2
