@@ -41,7 +41,8 @@ def normals_warnings(counts, lights, options, frame_gains=None, transfer=(), reg
     outline check and the frames that do not register with the others (``registration``, the
     stage record's entry of :func:`pipeline.photometric.registration.check_registration`)."""
     pixels = max(sum(counts.values()), 1)
-    warnings = [_WARNINGS[name].format(share=f"{counts[name] / pixels:.0%}", count=counts[name], lights=lights)
+    # the share as the status line prints it: 99.6 % is not "100 % of pixels" beside 0.4 % of others
+    warnings = [_WARNINGS[name].format(share=share_text(counts[name], pixels), count=counts[name], lights=lights)
                 for name, limit in WARN_SHARES.items() if counts.get(name) and counts[name] / pixels > limit]
     check = options.get("shape_check") or {}
     if "fallback" in check:

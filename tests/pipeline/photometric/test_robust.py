@@ -182,7 +182,10 @@ def test_few_lights_fit_the_shared_shape_rather_than_fall_back():
 def test_warnings_name_the_shares_that_matter():
     counts = {"ok": 100, "lambert_fallback": 300, "not_converged": 2, "ill_posed": 3, "shared_shape": 0}
     warnings = normals_warnings(counts, 12, {})
-    assert any("74% of pixels fell back to Lambert" in w and "12 lights" in w for w in warnings)
+    assert any("74.1% of pixels fell back to Lambert" in w and "12 lights" in w for w in warnings)
+    # the share reads as the status line's: not "100%" while some pixels took another model
+    nearly = normals_warnings({"lambert_fallback": 996, "shared_shape": 1, "too_few": 3}, 6, {})
+    assert nearly[0].startswith("99.6% of pixels fell back to Lambert"), nearly
     assert any("3 pixel(s) have no normal" in w for w in warnings)
     assert not any("did not converge" in w for w in warnings)      # 0.5 %: under the 5 % bar
     failed = normals_warnings({"ok": 10}, 96, {"shape_check": {"ratio": 20.0, "expected": 1.1,
