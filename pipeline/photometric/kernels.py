@@ -744,7 +744,7 @@ def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, solver
         kept = 0
         for j in range(k):
             inside = (lit[j] > 0.0) & (scratch[j] < high) & (scratch[j] > low)
-            sort32[j] = np.float32(inside)
+            sort32[j] = np.float32(inside)   # free once the median is read: the keep flags
             kept += inside
         changed = 0
         if kept >= min_obs:
