@@ -12,7 +12,7 @@ is the ``calibrate`` stage of a session. Measurements: docs/calibration.md.
 """
 
 from .sphere import CalibrationError, SphereCalibration, calibrate_lights, calibrate_sphere
-from .stage import calibrate_session, lights_without_spheres
+from .stage import CALIBRATE, CalibrateStage, calibrate_session, lights_without_spheres
 
 __all__ = ["calibrate_lights", "calibrate_sphere", "SphereCalibration", "CalibrationError", "calibrate_session",
-           "lights_without_spheres"]
+           "lights_without_spheres", "CalibrateStage", "CALIBRATE"]

@@ -16,6 +16,8 @@ from pipeline.imageio import read_image, read_mask
 from pipeline.session import file_sha256
 from pipeline.lightsio import LightSet, write_lights_yaml, write_lp
 from pipeline.paths import LIGHTS, LIGHTS_LP
+from pipeline.settings.calibrate import CalibrateOptions
+from pipeline.core.stage import Stage
 
 from .intensities import target_intensities
 from .overlays import write_overlay, write_sphere_overlays
@@ -23,7 +25,7 @@ from .positions import frame_offset
 from .reuse import reuse_calibration
 from .sphere import calibrate_sphere
 
-__all__ = ["calibrate_session", "lights_without_spheres", "OVERLAY", "OVERLAY_OUTLINE"]
+__all__ = ["calibrate_session", "lights_without_spheres", "OVERLAY", "OVERLAY_OUTLINE", "CalibrateStage", "CALIBRATE"]
 
 OVERLAY = "calibration/overlay.png"
 OVERLAY_OUTLINE = "calibration/overlay_outline.png"
@@ -331,3 +333,43 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
     if flags:
         echo(f"{len(flags)} flagged light(s): " + "; ".join(f"light {k}: {why}" for k, why in flags.items()))
     return result
+
+
+class CalibrateStage(Stage):
+    """The ``calibrate`` stage (:class:`pipeline.core.stage.Stage`): :func:`calibrate_session`, another
+    session's calibration (``from_session``), or :func:`lights_without_spheres`."""
+
+    name = "calibrate"
+    Options = CalibrateOptions
+    reads = ("linear/ sphere and outline frames", "a sphere mask (given or stored at import)",
+             "another session's calibration/lights.yaml (from_session)")
+
+    def work(self, session, options, *, force, jobs):
+        if options.get("from_session"):   # one sphere session's calibration for this one
+            ran = calibrate_session(session, force=force, echo=lambda line: None, **options) is not None
+            return ran, f"lights from {options['from_session']}"
+        if not session.frames("sphere"):
+            before = session.stage(self.name)
+            note = lights_without_spheres(session)
+            return session.stage(self.name) is not before, note
+        # what the calibration says (flagged lights) becomes the stage's note; its own "is up to
+        # date" line would repeat the runner's
+        said = []
+        ran = calibrate_session(session, force=force, echo=said.append, **options) is not None
+        return ran, "; ".join(said) if ran else ""
+
+    def replay(self, record):
+        params = (record or {}).get("params")
+        if not params:
+            return {}
+        # hashes are recorded beside the files they check; the stage recomputes them (and
+        # outline_frames names the session's outline frames, which the stage finds itself)
+        kwargs = {k: v for k, v in params.items()
+                  if not k.endswith("_sha256") and k != "outline_frames" and v is not None}
+        if "K" in kwargs:
+            kwargs["K"] = np.asarray(kwargs["K"], float)
+        return kwargs
+
+
+#: the stage object the runner and the scheduler run
+CALIBRATE = CalibrateStage()

@@ -29,10 +29,11 @@ from pathlib import Path
 
 from .errors import InputError, PsrigError, StageError
 from .lock import act_under
-from .photometric import WHOLE_IMAGE, assemble_normals, plan_normals, run_tile
+from .photometric import WHOLE_IMAGE, assemble_normals, normals_summary, plan_normals, run_tile
 from .progress import progress
-from .runner import SessionOutcome, StageOutcome, check_stage_range, lock_sessions, recorded_options, run_stage
+from .runner import SessionOutcome, check_stage_range, lock_sessions, run_stage, wanted_options
 from .session import STAGES, Session
+from .core.stage import Outcome
 
 __all__ = ["run_batch", "open_client", "summary_table", "TILE_PIXELS", "CONNECT_TIMEOUT"]
 
@@ -88,7 +89,7 @@ def _session_head(root, token, options, forced, stop, tile_pixels):
                 continue
             start = time.perf_counter()
             try:
-                wanted = {**recorded_options(name, session.stage(name)), **options.get(name, {})}
+                wanted = wanted_options(name, session.stage(name), options.get(name, {}))
                 plan = plan_normals(session, wanted, force=name in forced,
                                     tile_pixels=tile_pixels)
             except PsrigError as exc:
@@ -98,7 +99,7 @@ def _session_head(root, token, options, forced, stop, tile_pixels):
             elif plan is not None:
                 return outcome, plan
             else:
-                outcome.stages.append(StageOutcome(name, False, time.perf_counter() - start))
+                outcome.stages.append(Outcome(name, False, session.stage(name), seconds=time.perf_counter() - start))
     except PsrigError as exc:
         outcome.error = str(exc)
     return outcome, None
@@ -120,7 +121,9 @@ def _session_tail(outcome, plan, token, options, forced, stop, tiles):
         session = Session.open(plan.root, writer="run")
         if assembled == WHOLE_IMAGE:  # only a whole solve can make these normals
             run_stage(session, "normals", options, True, 1)
-        outcome.stages.append(StageOutcome("normals", True, time.time() - plan.run.started))
+        record = session.stage("normals")   # the line and warnings the serial executor gives
+        outcome.stages.append(Outcome("normals", True, record, normals_summary(record),
+                                      [str(w) for w in record.get("warnings") or []], time.time() - plan.run.started))
         names = _stage_names(stop)
         for name in names[names.index("normals") + 1:]:
             outcome.stages.append(run_stage(session, name, options, name in forced, 1))

@@ -25,6 +25,7 @@ from .errors import InputError
 from .imageio import read_image, read_mask, read_normal_png, write_image
 from .lightsio import read_lights
 from .paths import DEPTH, ERROR_MAP, EVAL, INTEGRATION, LIGHTS, NORMALS, NORMALS_MASK
+from .settings.report import ReportOptions
 from .yamlio import load_yaml
 
 __all__ = ["angular_error", "error_stats", "light_errors", "intensity_errors", "position_errors", "depth_error",
@@ -34,8 +35,9 @@ __all__ = ["angular_error", "error_stats", "light_errors", "intensity_errors", "
 EVAL_FILE = EVAL
 PERCENTILES = (25, 75, 90, 95)
 THRESHOLDS = (5, 10, 20)
-#: top of every angular-error colour scale unless told otherwise (degrees)
-ERROR_TOP_DEG = 30.0
+#: top of every angular-error colour scale unless told otherwise (degrees; declared with the
+#: report's options)
+ERROR_TOP_DEG = ReportOptions.defaults()["max_deg"]
 
 
 def angular_error(n1, n2, mask=None):

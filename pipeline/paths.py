@@ -1,4 +1,4 @@
-"""Session-relative paths of the files that stages hand to each other (see DESIGN.md).
+"""Session-relative paths of the files that stages hand to each other (see docs/design.md).
 
 One name per file, so a stage that writes a file and the stages that read it cannot disagree
 on where it lies. Paths are POSIX-style and relative to the session folder

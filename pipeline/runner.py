@@ -1,14 +1,14 @@
 """The stage runner: decode, calibrate, normals, integrate and report, each only when needed.
 
-Every stage function checks its own record (``session.stage_is_current``) and returns early
-when its parameters and input hashes still match, so the runner simply calls them in order and
-tells "up to date" from "ran" by whether the stage record changed. A changed parameter reruns
-that stage; its new outputs change the input hashes of the stages after it, which rerun in turn;
-the stages before it are untouched. A stage records itself only after all its outputs are
-written (atomically), so interrupting a run leaves every finished stage valid.
+Every stage (:class:`pipeline.core.stage.Stage`) checks its own record (``session.stage_is_current``)
+and returns an :class:`pipeline.core.stage.Outcome` that says whether it ran, so the runner simply
+runs them in order, each with its recorded options replaced by the ones given. A changed
+parameter reruns that stage; its new outputs change the input hashes of the stages after it,
+which rerun in turn; the stages before it are untouched. A stage records itself only after all
+its outputs are written (atomically), so interrupting a run leaves every finished stage valid.
 
-Stage adapters live in :data:`RUNNERS` ({name: callable(session, options, force, jobs)}), which
-tests may replace with stubs.
+The stages are :data:`RUNNERS` ({name: Stage}), which tests may replace with stubs. This module
+is the serial executor; :mod:`pipeline.cluster` runs the same stages on Dask.
 """
 
 import concurrent.futures
@@ -17,35 +17,22 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
+from calibration.stage import CALIBRATE
+from .decode.stage import DECODE
 from .errors import PsrigError, SessionError, StageError
+from .integrate.stage import INTEGRATE
 from .lock import act_under, lifeline, watch_lifeline, worker_context
-from .paths import LIGHTS
+from .photometric.stage import NORMALS
+from .report.stage import REPORT
 from .session import STAGES, Session
+from .core.stage import Outcome
 
 __all__ = ["run_session", "run_sessions", "lock_sessions", "run_stage", "check_stage_range", "RUNNERS", "StageOutcome",
-           "SessionOutcome", "stage_options", "recorded_options"]
+           "SessionOutcome", "stage_options", "recorded_options", "wanted_options", "STAGE_OBJECTS"]
 
 
-@dataclass
-class StageOutcome:
-    """What one stage did: ``ran`` (bool), ``seconds`` wall time, ``note`` (why it was skipped,
-    or what a user should know of a run) and the ``warnings`` its record holds (when it ran)."""
-
-    name: str
-    ran: bool
-    seconds: float
-    note: str = ""
-    warnings: list = field(default_factory=list)
-
-    def describe(self):
-        """The stage's one line: what it did, its note and its warnings."""
-        if self.ran:
-            line = f"{self.name}: ran in {self.seconds:.1f} s" + (f"; {self.note}" if self.note else "")
-        else:
-            line = f"{self.name}: up to date" + (f" ({self.note})" if self.note else "")
-        return line + "".join(f"; warning: {w}" for w in self.warnings)
+#: What one stage did (:class:`pipeline.core.stage.Outcome`), by the name this module gave it first.
+StageOutcome = Outcome
 
 
 @dataclass
@@ -57,62 +44,18 @@ class SessionOutcome:
     error: str = ""
 
 
-def _decode(session, options, force, jobs):
-    from .decode import decode_session, describe_record
-
-    before = session.stage("decode")
-    record = decode_session(session, force=force, jobs=jobs, **options)
-    return "; ".join(describe_record(record)) if record is not before else ""
-
-
-def _calibrate(session, options, force, jobs):
-    if options.get("from_session"):   # one sphere session's calibration for this one
-        from calibration import calibrate_session
-
-        calibrate_session(session, force=force, echo=lambda line: None, **options)
-        return f"lights from {options['from_session']}"
-    if not session.frames("sphere"):
-        from calibration import lights_without_spheres
-
-        return lights_without_spheres(session)
-    from calibration import calibrate_session
-
-    # what the calibration says (flagged lights) becomes the stage's note; its own "is up to
-    # date" line would repeat the runner's
-    said = []
-    ran = calibrate_session(session, force=force, echo=said.append, **options)
-    return "; ".join(said) if ran is not None else ""
-
-
-def _normals(session, options, force, jobs):
-    if not session.path(LIGHTS).is_file():
-        raise StageError(f"{session.path(LIGHTS)}: missing; the calibrate stage makes it")
-    from .photometric import normals_session, normals_summary
-
-    record = normals_session(session, force=force, **options)   # its warnings are in its record
-    return normals_summary(record) if record is not None else None
-
-
-def _integrate(session, options, force, jobs):
-    from .integrate import integrate_session
-
-    integrate_session(session, force=force, **options)  # its warnings are in its record
-
-
-def _report(session, options, force, jobs):
-    from .report import report_session
-
-    report_session(session, force=force, **options)
-
-
-#: Stage adapters in running order; each returns an optional note or None.
-RUNNERS = {"decode": _decode, "calibrate": _calibrate, "normals": _normals,
-           "integrate": _integrate, "report": _report}
+#: The stages (:class:`pipeline.core.stage.Stage`) in running order, by name. Tests may replace one
+#: with a plain callable ``(session, options, force, jobs) -> note``: :func:`run_stage` then
+#: tells "ran" from "current" by whether the stage's record changed.
+STAGE_OBJECTS = {"decode": DECODE, "calibrate": CALIBRATE, "normals": NORMALS, "integrate": INTEGRATE,
+                 "report": REPORT}
+RUNNERS = dict(STAGE_OBJECTS)
 
 
 def stage_options(*, method=None, t_low=None, integrate_method=None, binning=None, circle=None, gamma=None,
                   sphere_mask=None, outline=None, from_session=None):
-    """Per-stage keyword options from run-level settings (None = the stage's default)."""
+    """Per-stage keyword options from a few run-level settings (None = the stage's default);
+    ``psrig run`` itself builds them from every stage's declared options."""
     chosen = {"decode": {"binning": binning, "gamma": gamma},
               "calibrate": {"circle": circle, "sphere_mask": sphere_mask, "outline": outline,
                             "from_session": from_session},
@@ -122,70 +65,48 @@ def stage_options(*, method=None, t_low=None, integrate_method=None, binning=Non
 
 
 def recorded_options(name, record):
-    """Keyword options that reproduce a stage's recorded parameters ({} when none are recorded).
+    """Keyword options that reproduce a stage's recorded parameters ({} when none are recorded):
+    the stage's `pipeline.core.stage.Stage.replay`.
 
     ``psrig run`` starts from these, so a stage that was run by hand with its own settings (say
     ``psrig calibrate --outline F`` or ``psrig normals --t-low 0.3``) is neither redone nor
     overwritten with the defaults; options given to the run replace the recorded ones key by key.
     """
-    params = dict((record or {}).get("params") or {})
-    if not params or name not in _RECORDED:
-        return {}
-    return _RECORDED[name](params)
+    return STAGE_OBJECTS[name].replay(record) if name in STAGE_OBJECTS else {}
 
 
-def _calibrate_kwargs(params):
-    # hashes are recorded beside the files they check; the stage recomputes them
-    # (and outline_frames names the session's outline frames, which the stage finds itself)
-    kwargs = {k: v for k, v in params.items()
-              if not k.endswith("_sha256") and k != "outline_frames" and v is not None}
-    if "K" in kwargs:
-        kwargs["K"] = np.asarray(kwargs["K"], float)
-    return kwargs
-
-
-def _decode_kwargs(params):
-    from .decode import recorded_kwargs
-
-    return recorded_kwargs(params)
-
-
-def _integrate_kwargs(params):
-    kwargs = {"method": params.get("method", "smooth"), **(params.get("options") or {})}
-    if params.get("K") is not None:
-        kwargs["K"] = np.asarray(params["K"], float)
-    return kwargs
-
-
-#: stage -> recorded params to keyword options (the report has nothing a user sets)
-_RECORDED = {"decode": _decode_kwargs, "calibrate": _calibrate_kwargs, "normals": dict, "integrate": _integrate_kwargs}
+def wanted_options(name, record, given):
+    """The options a stage runs with: its recorded ones replaced by ``given``
+    (`pipeline.core.stage.Stage.merge`)."""
+    return STAGE_OBJECTS[name].merge(recorded_options(name, record), given)
 
 
 def run_stage(session, name, options, force, jobs):
     """Run one stage (a name of :data:`RUNNERS`) with the options recorded for it, replaced key by
-    key by ``options[name]``; returns a :class:`StageOutcome`. StageError names the stage."""
-    # record_stage stores a new dict; a skipped stage leaves the old one in place (timestamps
-    # have one-second resolution, too coarse to tell a fast rerun)
+    key by ``options[name]``; returns an :class:`pipeline.core.stage.Outcome`. StageError names the stage."""
     before = session.stage(name)
     start = time.perf_counter()
     try:
-        note = RUNNERS[name](session, {**recorded_options(name, before), **options.get(name, {})}, force, jobs)
+        done = RUNNERS[name](session, wanted_options(name, before, options.get(name, {})), force, jobs)
     except PsrigError as exc:
         raise StageError(f"stage {name}: {exc}") from None
     except ModuleNotFoundError as exc:
         if not (exc.name or "").startswith(("pipeline.", "calibration.")):
             raise
         raise StageError(f"stage {name}: module {exc.name} is missing from this installation") from None
-    seconds = time.perf_counter() - start
-    record = session.stage(name)
+    if not isinstance(done, Outcome):   # a plain callable: its note, and the record tells whether it ran
+        record = session.stage(name)
+        ran = record is not None and record is not before
+        warnings = [str(w) for w in (record or {}).get("warnings") or []] if ran else []
+        done = Outcome(name, ran, record, done or "", warnings)
+    done.seconds = time.perf_counter() - start
+    record = done.record
     if record is not None and record.get("status", "ok") != "ok":
         from .decode import describe_failures   # only decode fails frame by frame
         failed = "; ".join(describe_failures(record.get("failed")))
         raise StageError(f"stage {name}: {session.root}: status {record['status']}"
                          + (f" ({failed})" if failed else ""))
-    ran = record is not None and record is not before
-    warnings = [str(w) for w in (record or {}).get("warnings") or []] if ran else []
-    return StageOutcome(name, ran, seconds, note or "", warnings)
+    return done
 
 
 def check_stage_range(start, stop):

@@ -1,6 +1,6 @@
 """psrig's tests, one folder per package (tests/pipeline/photometric mirrors pipeline/photometric).
 
-Real data made by others lies in ``../shared/data`` beside the repository (DESIGN.md); tests
+Real data made by others lies in ``../shared/data`` beside the repository (docs/design.md); tests
 that need it skip when it is absent.
 """
 

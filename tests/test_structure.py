@@ -11,7 +11,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("pipeline", "rig", "calibration")
-#: DESIGN.md: the pipeline root is the ground floor (and the top floor's few modules)
+#: docs/design.md: the pipeline root is the ground floor (and the top floor's few modules)
 MAX_ROOT_MODULES = 20
 
 

@@ -43,7 +43,9 @@ def build_parser():
 def main(argv=None):
     """Entry point of the ``psrig`` console script. Returns the process exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        return _unknown(parser, args, extra)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
@@ -59,6 +61,28 @@ def main(argv=None):
     except BrokenPipeError:
         return _closed_pipe()
     return int(code or 0)
+
+
+def _unknown(parser, args, extra):
+    """An option (or word) the command does not take: its own usage, the word, and the options
+    it does take (a misspelt stage option must not look like a missing one)."""
+    command = _subparser(parser, args.command) if getattr(args, "command", None) else None
+    if command is None:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    flags = sorted({s for a in command._actions for s in a.option_strings if s.startswith("--")} - {"--help"})
+    command.print_usage(sys.stderr)
+    word = next((e for e in extra if e.startswith("-")), extra[0])
+    what = "option" if word.startswith("-") else "argument"
+    print(f"psrig {args.command}: error: unknown {what} {word.split('=')[0]}; psrig {args.command} takes: "
+          f"{', '.join(flags)}", file=sys.stderr)
+    return 2
+
+
+def _subparser(parser, name):
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return action.choices.get(name)
+    return None
 
 
 def _closed_pipe():

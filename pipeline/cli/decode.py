@@ -1,13 +1,9 @@
 """``psrig decode SESSION``: raw frames -> linear EXR + saturation masks in linear/."""
 
-import argparse
 import sys
 
+from ..settings.decode import COMPRESSIONS, DecodeOptions
 from .writing import open_session
-
-#: pipeline.decode.COMPRESSIONS, spelled out so that building the parser imports no numpy (a test
-#: checks they agree)
-COMPRESSIONS = ("auto", "zip", "none")
 
 __all__ = ["register", "COMPRESSIONS"]
 
@@ -22,33 +18,10 @@ def register(subparsers):
                     "a bracket (exposure: {bracket: [...]}) are merged into linear/<frame>.exr, "
                     "each pixel from the longest unsaturated one.")
     parser.add_argument("session", metavar="SESSION", help="session folder")
-    parser.add_argument("--method", choices=("mosaic", "postprocess"), default="mosaic",
-                        help="mosaic: from the raw mosaic with per-channel black levels, "
-                             "unbiased (default); postprocess: LibRaw's linear pipeline")
-    parser.add_argument("--grey", action="store_true", help="one grey channel instead of RGB")
-    parser.add_argument("--bin", type=int, choices=(1, 2), default=1, dest="binning",
-                        help="2: half size, 2x2 cells averaged without demosaicing")
-    parser.add_argument("--gamma", default="auto", type=_gamma,
-                        help="transfer function of 8- and 16-bit image frames: auto (default: what "
-                             "each file declares, else sRGB for 8-bit and linear for 16-bit), "
-                             "srgb, linear, or an exponent such as 2.2; printed and recorded")
-    parser.add_argument("--compression", choices=COMPRESSIONS, default="auto",
-                        help="linear/ EXRs: auto (default: lossless ZIP for the frames it shrinks "
-                             "to 1/1.8 or less, such as frames from 8/16-bit files), zip, none")
-    parser.add_argument("--half", action="store_true",
-                        help="half-float EXRs: half the disk, but lossy (11-bit mantissa)")
+    DecodeOptions.add_arguments(parser)
     parser.add_argument("--jobs", type=int, default=None, help="worker processes (default: cores)")
     parser.add_argument("--force", action="store_true", help="decode again even when up to date")
     parser.set_defaults(func=run)
-
-
-def _gamma(text):
-    from ..gamma import parse_gamma
-
-    try:
-        return parse_gamma(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def run(args):
@@ -57,10 +30,7 @@ def run(args):
 
     session = open_session(args.session, args)
     before = session.stage("decode")
-    record = decode_session(session, method=args.method,
-                            channels="grey" if args.grey else "rgb", binning=args.binning,
-                            gamma=args.gamma, compression=args.compression, half=args.half,
-                            jobs=args.jobs, force=args.force)
+    record = decode_session(session, jobs=args.jobs, force=args.force, **DecodeOptions.from_args(args))
     done = frames_decoded(record)
     if record is before:
         print(f"decode: up to date ({done} frames)")

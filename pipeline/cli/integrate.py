@@ -10,12 +10,10 @@ parser is built, so that ``psrig --help`` stays fast.
 from pathlib import Path
 
 from ..errors import InputError
+from ..settings.integrate import INTEGRATION_METHODS as METHOD_NAMES, IntegrateOptions
 from .writing import open_session
 
 __all__ = ["register"]
-
-#: integration methods (pipeline.integrate.METHODS, checked there when the command runs)
-METHOD_NAMES = ("smooth", "bilateral")
 
 
 def register(subparsers):
@@ -30,28 +28,13 @@ def register(subparsers):
     parser.add_argument("--out", help="output folder for --normals")
     parser.add_argument("--K", dest="K", help="3x3 intrinsics text file (perspective); "
                         "omit for orthographic")
-    parser.add_argument("--method", default="smooth", metavar="NAME",
-                        help=f"{' or '.join(METHOD_NAMES)}: smooth least squares, or "
-                             "discontinuity-preserving bilateral")
-    parser.add_argument("--k", type=float, default=None,
-                        help="bilateral sharpness (larger keeps more discontinuities)")
     parser.add_argument("--drop-invalid", action="store_true",
                         help="with --normals: leave pixels with unusable normals (non-finite, facing "
                              "away) out of the mask instead of refusing them (a session's own "
                              "normals always are, with a note)")
     parser.add_argument("--albedo", help="with --normals: albedo image (EXR or PNG) for the "
                         "meshes' vertex colours and texture")
-    mesh = parser.add_argument_group("mesh units and splitting")
-    mesh.add_argument("--pixel-size", type=float, metavar="LENGTH",
-                      help="orthographic: the length one pixel covers on the object; the meshes are "
-                           "then in --unit instead of pixels")
-    mesh.add_argument("--distance", type=float, metavar="LENGTH",
-                      help="perspective (--K): the object's distance from the camera; the meshes are "
-                           "then in --unit instead of up to scale")
-    mesh.add_argument("--unit", metavar="NAME", help="unit of --pixel-size or --distance (default mm)")
-    mesh.add_argument("--max-slope", type=float, metavar="DEG", dest="max_slope_deg",
-                      help="no face across a depth step steeper than this (and than the normals "
-                           "say); default 80")
+    IntegrateOptions.add_arguments(parser, first=("method", "k"))
     parser.add_argument("--force", action="store_true", help="rerun even if up to date")
     parser.set_defaults(func=run)
 
@@ -60,19 +43,18 @@ def run(args):
     from ..integrate import integrate_session, read_intrinsics
 
     K = read_intrinsics(args.K) if args.K else None
-    options = {} if args.k is None else {"k": args.k}
-    options.update({k: getattr(args, k) for k in ("pixel_size", "distance", "unit", "max_slope_deg")
-                    if getattr(args, k) is not None})
+    options = IntegrateOptions.from_args(args)
+    method = options.pop("method", IntegrateOptions.defaults()["method"])
     if args.drop_invalid:
         options["invalid"] = "drop"
-    if args.k is not None and args.method != "bilateral":
+    if "k" in options and method != "bilateral":
         raise InputError("--k applies to --method bilateral only")
     if args.normals:
-        return _run_files(args, K, options)
+        return _run_files(args, K, method, options)
     if not args.session:
         raise InputError("give a SESSION folder, or --normals PNG --mask PNG --out DIR")
     session = open_session(args.session, args)
-    result = integrate_session(session, K=K, method=args.method, force=args.force, **options)
+    result = integrate_session(session, K=K, method=method, force=args.force, **options)
     if result is None:
         print(f"integrate: {session.root}: up to date (use --force to rerun)")
         return 0
@@ -80,7 +62,7 @@ def run(args):
     return 0
 
 
-def _run_files(args, K, options):
+def _run_files(args, K, method, options):
     from ..imageio import read_image, read_mask
     from ..integrate import integrate_files, write_depth_outputs
     from ..integrate.stage import MESH_KEYS
@@ -99,7 +81,7 @@ def _run_files(args, K, options):
     albedo = read_image(args.albedo) if args.albedo else None
     if albedo is not None and albedo.shape[:2] != normals.shape[:2]:
         raise InputError(f"{args.albedo}: size {albedo.shape[:2]} differs from {args.normals} {normals.shape[:2]}")
-    result = integrate_files(normals, mask, K, args.method, args.normals, **options)
+    result = integrate_files(normals, mask, K, method, args.normals, **options)
     info = {"inputs": {"normals": str(Path(args.normals).resolve()),
                        "mask": str(Path(args.mask).resolve()) if args.mask else None,
                        "albedo": str(Path(args.albedo).resolve()) if args.albedo else None}}

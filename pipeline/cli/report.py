@@ -1,6 +1,7 @@
 """``psrig report SESSION... [--out DIR] [--max-deg F] [--force] [--no-eval]``: each session's
 report/index.html and, for several sessions, a comparison page on the same scales."""
 
+from ..settings.report import ReportOptions
 from .writing import open_session
 
 __all__ = ["register"]
@@ -21,8 +22,7 @@ def register(subparsers):
     parser.add_argument("--out", metavar="DIR",
                         help="folder of the comparison page with several sessions (default: "
                              "./psrig-compare; an earlier comparison there is replaced)")
-    parser.add_argument("--max-deg", type=float, default=30.0,
-                        help="top of the angular-error scale, degrees (default 30)")
+    ReportOptions.add_arguments(parser)
     parser.add_argument("--force", action="store_true", help="rebuild even when up to date")
     parser.add_argument("--no-eval", action="store_true",
                         help="do not score against ground truth first")
@@ -35,12 +35,13 @@ def run(args):
 
     if args.out and len(args.sessions) < 2:
         raise InputError("--out is for a comparison of two sessions or more")
+    options = ReportOptions.of(ReportOptions.from_args(args))
     sessions = [open_session(root, args) for root in args.sessions]  # every folder checked before any work
     for session in sessions:
-        record = report_session(session, force=args.force, evaluate=not args.no_eval, max_deg=args.max_deg)
+        record = report_session(session, force=args.force, evaluate=not args.no_eval, max_deg=options.max_deg)
         state = "up to date" if record is None else f"written in {record['seconds']:.1f} s"
         print(f"report: {session.path(INDEX)} ({state})")
     if len(sessions) > 1:
-        index = compare_sessions(sessions, args.out or "psrig-compare", max_deg=args.max_deg)
+        index = compare_sessions(sessions, args.out or "psrig-compare", max_deg=options.max_deg)
         print(f"report: comparison of {len(sessions)} sessions: {index.resolve()}")
     return 0

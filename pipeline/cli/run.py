@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ..settings import DecodeOptions, IntegrateOptions, NormalsOptions, ReportOptions
 from .calibrate import parse_circles
 
 __all__ = ["register", "session_summary", "STAGES"]
@@ -36,15 +37,10 @@ def register(subparsers):
                         help=f"rerun from this stage on ({', '.join(STAGES)})")
     parser.add_argument("--to", dest="stop", choices=STAGES, metavar="STAGE",
                         help="last stage to run (default: report)")
-    parser.add_argument("--method", help="photometric-stereo method of the normals stage "
-                                         "(default: the stage's, biquadratic)")
-    parser.add_argument("--t-low", type=float, help="normals: fraction of low-frequency "
-                                                    "observations kept (T_low)")
-    parser.add_argument("--integrate-method", help="integration method (smooth, bilateral)")
-    parser.add_argument("--bin", type=int, choices=(1, 2), dest="binning",
-                        help="decode: 2 = half size without demosaicing")
-    parser.add_argument("--gamma", help="decode: transfer function of 8/16-bit image frames (auto, srgb, "
-                                        "linear or an exponent; see psrig decode --help)")
+    # every stage's options, as its own command spells them (the two methods apart); an option
+    # given replaces the recorded one, the others keep what the stage was last run with
+    DecodeOptions.add_arguments(parser.add_argument_group("decode (as psrig decode)"),
+                                rename={"method": "--decode-method"})
     calib = parser.add_argument_group("calibrate (as psrig calibrate; kept for later runs)")
     calib.add_argument("--circle", action="append", help="sphere outline CX,CY,R in pixels (repeat for several)")
     calib.add_argument("--sphere-mask", metavar="FILE", help="mask of the sphere(s), one blob per sphere")
@@ -53,6 +49,10 @@ def register(subparsers):
     outline.add_argument("--no-outline", action="store_true", help="find the spheres on the light frames")
     calib.add_argument("--calibration-from", metavar="OTHER_SESSION",
                        help="use another session's calibration (psrig calibrate --from)")
+    NormalsOptions.add_arguments(parser.add_argument_group("normals (as psrig normals)"), first=("method",))
+    IntegrateOptions.add_arguments(parser.add_argument_group("integrate (as psrig integrate)"),
+                                   rename={"method": "--integrate-method"})
+    ReportOptions.add_arguments(parser.add_argument_group("report (as psrig report)"))
     parser.add_argument("--scheduler", nargs="?", const="local", metavar="ADDRESS",
                         help="run on a Dask cluster (psrig[cluster]): the scheduler's address, "
                              "or no address for a local cluster of --jobs workers; photometric "
@@ -83,16 +83,17 @@ def _calibration(args):
 
 
 def run(args):
-    from ..runner import run_sessions, stage_options
+    from ..runner import run_sessions
 
     if args.jobs < 1:
         print("psrig run: error: --jobs must be >= 1", file=sys.stderr)
         return 2
     if args.quiet:
         os.environ["PSRIG_PROGRESS"] = "off"  # an environment variable: worker processes see it too
-    options = stage_options(method=args.method, t_low=args.t_low,
-                            integrate_method=args.integrate_method, binning=args.binning,
-                            gamma=args.gamma, **_calibration(args))
+    options = {"decode": DecodeOptions.from_args(args),
+               "calibrate": {k: v for k, v in _calibration(args).items() if v is not None},
+               "normals": NormalsOptions.from_args(args), "integrate": IntegrateOptions.from_args(args),
+               "report": ReportOptions.from_args(args)}
     lines = not (args.quiet or args.json)
     run = dict(options=options, force=args.force, start=args.start, stop=args.stop, jobs=args.jobs,
                echo=(lambda line: print(line, flush=True)) if lines else None, wait=args.wait)

@@ -17,8 +17,8 @@ from .formats import FrameFormat, frame_format, readable_formats
 from .frame import COMPRESSIONS, check_options, decode_frame, frame_size
 from .raw import METHODS as RAW_METHODS
 from .record import describe as describe_record, describe_failures, frames_decoded, recorded_kwargs
-from .stage import REFERENCE_KINDS, decode_session
+from .stage import DECODE, REFERENCE_KINDS, DecodeStage, decode_session
 
 __all__ = ["decode_session", "decode_frame", "frame_size", "check_options", "RAW_METHODS", "REFERENCE_KINDS",
            "COMPRESSIONS", "frame_format", "FrameFormat", "readable_formats", "describe_record", "describe_failures",
-           "frames_decoded", "recorded_kwargs"]
+           "frames_decoded", "recorded_kwargs", "DecodeStage", "DECODE"]

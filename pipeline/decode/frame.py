@@ -10,17 +10,18 @@ import numpy as np
 
 from ..errors import ImageFileError, InputError
 from ..gamma import parse_gamma
+from ..settings.decode import DecodeOptions
 from .formats import frame_format
 from .image import decode_image
 from .raw import METHODS, bin_rgb, decode_raw, open_raw
 
 __all__ = ["decode_frame", "frame_size", "check_options", "CHANNELS", "BINNINGS", "COMPRESSIONS"]
 
-CHANNELS = ("rgb", "grey")
-BINNINGS = (1, 2)
+CHANNELS = DecodeOptions.specs()["channels"][1].choices
+BINNINGS = DecodeOptions.specs()["binning"][1].choices
 #: how linear/ EXRs are written: 'auto' compresses (ZIP) the frames that shrink 1.8x or more
 #: (:data:`pipeline.decode.exr.AUTO_MIN_RATIO`), 'zip' every frame, 'none' none
-COMPRESSIONS = ("auto", "zip", "none")
+COMPRESSIONS = DecodeOptions.specs()["compression"][1].choices
 
 
 def check_options(method="mosaic", channels="rgb", binning=1, gamma="auto", compression="auto", half=False):

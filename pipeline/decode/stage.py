@@ -35,7 +35,7 @@ import os
 import shutil
 import time
 
-from .record import assumed
+from .record import assumed, describe as describe_record, recorded_kwargs
 from .frame import check_options, decode_frame, frame_size
 from .merge import decoded_inputs, lit_inputs, merge_task, unmergeable
 from .pool import prepare_pool, run_tasks, start_pool
@@ -44,8 +44,10 @@ from ..brackets import bracket_groups, frame_shutter, reference_shutter
 from ..atomic import sweep_tree
 from ..errors import InputError, PsrigError, StageError
 from ..paths import DECODE_SCRATCH
+from ..settings.decode import DecodeOptions
+from ..core.stage import Stage
 
-__all__ = ["decode_frame", "decode_session", "REFERENCE_KINDS"]
+__all__ = ["decode_frame", "decode_session", "REFERENCE_KINDS", "DecodeStage", "DECODE"]
 
 #: An interrupted run loses at most this many manifest saves' worth of decoding (see _Run).
 RECORD_SHARE = 20
@@ -435,3 +437,27 @@ def _record(session, frames, run, seconds, status=None):
         # top level: what the object frames got (earlier records' form); by_kind: every lit kind
         subtracted={**subtracted.get("object", {"kind": None, "frames": []}), "by_kind": subtracted},
         frames={f["id"]: run.infos[f["id"]] for f in done}, **extra)
+
+
+class DecodeStage(Stage):
+    """The ``decode`` stage (:class:`pipeline.core.stage.Stage`): :func:`decode_session`."""
+
+    name = "decode"
+    Options = DecodeOptions
+    reads = ("raw/: every frame the manifest lists (its sha256)",
+             "session.yaml: each frame's id, kind, file, applies_to and bracket")
+
+    def work(self, session, options, *, force, jobs):
+        before = session.stage(self.name)
+        record = decode_session(session, force=force, jobs=jobs, **options)
+        # a current record is returned as it was: the same object
+        ran = record is not before
+        return ran, "; ".join(describe_record(record)) if ran else ""
+
+    def replay(self, record):
+        params = (record or {}).get("params")
+        return recorded_kwargs(params) if params else {}
+
+
+#: the stage object the runner and the scheduler run
+DECODE = DecodeStage()

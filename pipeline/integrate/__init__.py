@@ -12,8 +12,8 @@ Measurements: docs/integration.md.
 
 from .mesh import write_depth_mesh, write_shaded
 from .solve import METHODS, IntegrationResult, check_intrinsics, integrate_normals, integrate_normals_full
-from .stage import integrate_files, integrate_session, read_intrinsics, write_depth_outputs
+from .stage import INTEGRATE, IntegrateStage, integrate_files, integrate_session, read_intrinsics, write_depth_outputs
 
 __all__ = ["integrate_normals", "integrate_normals_full", "IntegrationResult", "METHODS", "check_intrinsics",
            "integrate_session", "integrate_files", "read_intrinsics", "write_depth_outputs", "write_depth_mesh",
-           "write_shaded"]
+           "write_shaded", "IntegrateStage", "INTEGRATE"]

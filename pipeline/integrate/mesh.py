@@ -22,6 +22,7 @@ from ..atomic import atomic_write_bytes, atomic_write_text
 from ..errors import InputError
 from ..gamma import encode_gamma
 from ..imageio import write_image
+from ..settings.integrate import MAX_SLOPE_DEG
 
 __all__ = ["depth_to_points", "grid_faces", "split_faces", "mesh_normals", "albedo_colours", "Mesh",
            "build_mesh", "write_ply", "write_obj", "write_depth_mesh", "shade", "write_shaded",
@@ -29,8 +30,8 @@ __all__ = ["depth_to_points", "grid_faces", "split_faces", "mesh_normals", "albe
 
 #: Light of the shaded render: from the upper left, toward the camera (camera frame).
 DEFAULT_LIGHT = (-0.4, 0.5, 0.77)
-#: An edge steeper than this (degrees from facing the camera) may be a depth jump ...
-MAX_SLOPE_DEG = 80.0
+#: An edge steeper than this (degrees from facing the camera) may be a depth jump ... (declared
+#: with the stage's options)
 #: ... and is one when it is also this many times steeper than its end points' normals say.
 NORMAL_SLACK = 3.0
 

@@ -1,6 +1,6 @@
 """Normal integration: normals (H, W, 3) + mask -> depth (H, W), one dispatcher over methods.
 
-Conventions (DESIGN.md): camera frame x right, y up, z toward the camera; image row 0 is the
+Conventions (docs/design.md): camera frame x right, y up, z toward the camera; image row 0 is the
 top row, so +y points to decreasing rows.
 
 - Orthographic (``K=None``): the result is the surface *height* z toward the camera, in pixel

@@ -18,11 +18,13 @@ from ..atomic import atomic_write_text
 from ..errors import InputError, StageError
 from ..imageio import read_image, read_mask, write_image
 from ..paths import ALBEDO, DEPTH, INTEGRATION, MESH, MESH_OBJ, MESH_TEXTURE, NORMALS, NORMALS_MASK, SHADED
+from ..settings.integrate import IntegrateOptions
+from ..core.stage import Stage
 from .mesh import MAX_SLOPE_DEG, albedo_colours, build_mesh, write_obj, write_ply, write_shaded
 from .solve import check_intrinsics, integrate_normals_full
 
 __all__ = ["integrate_session", "write_depth_outputs", "read_intrinsics", "integrate_files", "mesh_units",
-           "NORMALS", "MASK", "OUTPUTS", "MESH_KEYS"]
+           "NORMALS", "MASK", "OUTPUTS", "MESH_KEYS", "IntegrateStage", "INTEGRATE"]
 
 MASK = NORMALS_MASK
 OUTPUTS = (DEPTH, MESH, MESH_OBJ, "depth/mesh.mtl", MESH_TEXTURE, SHADED, INTEGRATION)
@@ -218,3 +220,34 @@ def _read_inputs(session):
     if mask.shape != normals.shape[:2]:
         raise InputError(f"{session.path(MASK)}: size {mask.shape} differs from {NORMALS} {normals.shape[:2]}")
     return normals[:, :, :3], mask
+
+
+class IntegrateStage(Stage):
+    """The ``integrate`` stage (:class:`pipeline.core.stage.Stage`): :func:`integrate_session`."""
+
+    name = "integrate"
+    Options = IntegrateOptions
+    reads = (NORMALS, MASK, f"{ALBEDO} (the meshes' colour, when present)")
+
+    def check(self, options):
+        # K (intrinsics, an array read from --K) is the stage's input beside its declared options
+        rest = {k: v for k, v in options.items() if k != "K"}
+        return {**IntegrateOptions.check(rest, where=self.name), **({"K": options["K"]} if "K" in options else {})}
+
+    def work(self, session, options, *, force, jobs):
+        result = integrate_session(session, force=force, **options)   # its warnings are in its record
+        return result is not None, ""
+
+    def replay(self, record):
+        params = (record or {}).get("params")
+        if not params:
+            return {}
+        kwargs = {"method": params.get("method", "smooth"),
+                  **{k: v for k, v in (params.get("options") or {}).items() if k != "invalid"}}
+        if params.get("K") is not None:
+            kwargs["K"] = np.asarray(params["K"], float)
+        return kwargs
+
+
+#: the stage object the runner and the scheduler run
+INTEGRATE = IntegrateStage()

@@ -15,6 +15,7 @@ import concurrent.futures as futures
 
 import numpy as np
 
+from ..settings.normals import SHAPE_PRIOR, BiquadraticOptions
 from .model import half_vectors, to_paper_order
 from .pixel_fit import MAX_ITER, TOL_DEG, fit_pixels
 from .methods import METHODS, MIN_OBS, STATUS, base_status, facing_away, no_normal, shading
@@ -53,7 +54,14 @@ SPARE_OBS = 3
 class Biquadratic:
     """The default method; see the module docstring and :func:`biquadratic_method`."""
 
-    def prepare(self, gather, pixels, shape_prior=0.01, sample_pixels=SAMPLE_PIXELS, seed=0,
+    #: the method's options (:class:`pipeline.core.options.Options`)
+    options = BiquadraticOptions
+    #: its coefficients render rho (the registration check renders frames from them)
+    renders_rho = True
+    #: 'auto' anchors its lights on specular peaks under a narrow cone (:mod:`.anchor`)
+    wants_anchor = True
+
+    def prepare(self, gather, pixels, shape_prior=SHAPE_PRIOR, sample_pixels=SAMPLE_PIXELS, seed=0,
                 min_shape_obs=MIN_SHAPE_OBS, threads=1, chosen=None, warm=None, **options):
         """Fit the shared shape on a fixed random subsample of the object's pixels.
 
@@ -110,7 +118,7 @@ class Biquadratic:
             reuse_selection(obs, valid, lights, chosen, **options)
         return {"obs": obs, "valid": valid, "lights": lights, "base": base, "weights": weights, "b": b}
 
-    def fit(self, picked, context=None, shape_prior=0.01, max_iter=MAX_ITER, tol_deg=TOL_DEG, spare_obs=SPARE_OBS,
+    def fit(self, picked, context=None, shape_prior=SHAPE_PRIOR, max_iter=MAX_ITER, tol_deg=TOL_DEG, spare_obs=SPARE_OBS,
             min_shape_obs=MIN_SHAPE_OBS, **options):
         """Phase two: the model fit of a :meth:`select`-ed chunk (waits for the shared shape).
 
@@ -173,32 +181,14 @@ METHODS.register("biquadratic", Biquadratic())
 
 
 def biquadratic_method(obs, valid, lights, **options):
-    """Options of the default method.
+    """The default method on one chunk: ``obs`` (N, K), ``valid`` (N, K) or None, ``lights``
+    (K, 3) or (N, K, 3); returns the chunk's maps (see :mod:`pipeline.photometric.methods`).
 
-    Parameters
-    ----------
-    selection : {'auto', 'robust', 'darkest'}
-        'auto' (default) picks from the light geometry, see :func:`resolve_selection`.
-    t_low : float, optional
-        The paper's rule: keep the darkest ``t_low`` fraction (0-1) of each pixel's
-        non-shadowed observations. Default None (robust selection, or 0.35 for wide lights).
-    t_shadow : float
-        Observations below this fraction of the pixel's 90th-percentile intensity are shadows
-        (default 0.1).
-    reject_k : float
-        Robust rejection threshold in robust standard deviations (default 2.5).
-    shape_prior : float
-        Strength of the pull toward the object's shared shape (default 0.01; 0 = the paper's
-        independent per-pixel fit).
-    shape_check : bool
-        False: use the shared shape without the single-material check (which otherwise, when the
-        object fails it, pulls every pixel toward :data:`LAMBERT_SHAPE` instead).
-    max_iter, tol_deg
-        Levenberg-Marquardt steps per pixel at most (:data:`MAX_ITER`, 50) and the turn of the
-        normal by its Gauss-Newton step below which a pixel stops (:data:`TOL_DEG`, 0.1
-        degree); a pixel whose step is still larger after ``max_iter`` steps is ``not_converged``.
-    specular_anchor : {'auto', True, False}
-        Handled by :func:`estimate_normals` (not by this per-chunk function): correct the
-        lights' polar angles from sharp specular peaks, see :mod:`pipeline.photometric.anchor`.
+    ``options`` are :class:`pipeline.settings.BiquadraticOptions` (each with its default and
+    help there), and the fit's ``max_iter`` and ``tol_deg``: Levenberg-Marquardt steps per
+    pixel at most (:data:`MAX_ITER`) and the turn of the normal by its Gauss-Newton step below
+    which a pixel stops (:data:`TOL_DEG` degrees); a pixel whose step is still larger after
+    ``max_iter`` steps is ``not_converged``. The specular anchor and the frame checks are
+    :func:`pipeline.photometric.estimate_normals`' (:class:`pipeline.settings.EstimateOptions`).
     """
-    return METHODS["biquadratic"](obs, valid, lights, context={}, **options)
+    return METHODS["biquadratic"](obs, valid, lights, context={}, **BiquadraticOptions.check(options))

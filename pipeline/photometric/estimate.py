@@ -22,7 +22,7 @@ from ..jit import single_threaded
 from .anchor import anchor_scale, anchor_wanted, first_verdict
 from .engine import CHUNK_SIZE, KeptSelection, gatherer, prepare_context, run_chunks
 from .frame_gains import FrameCheck, check_frames
-from .methods import get_method
+from .methods import check_method_options, get_method
 from .near_lights import PointLights
 from .outline import outline_check
 from .selection import resolve_selection
@@ -230,8 +230,9 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     progress : callable, optional
         Called with the number of pixels finished after each chunk.
     **options
-        Method options (see each method, e.g. :func:`pipeline.photometric.biquadratic_method`),
-        and ``specular_anchor`` ('auto', True or False): correct the lights' polar angles where
+        The method's options (its declaration: :class:`pipeline.settings.BiquadraticOptions`
+        for the default, :class:`pipeline.settings.SelectionOptions` for the Lambertian ones;
+        an unknown name is an InputError listing the known ones), and ``specular_anchor`` ('auto', True or False): correct the lights' polar angles where
         sharp specular peaks show the normals' slant to be off (:mod:`pipeline.photometric.anchor`;
         'auto' = the biquadratic method under a narrow light cone). Its outcome is in the
         result's ``options`` (``cone_scale``, 1.0 when unchanged, ``anchor``, ``mismatch_deg``,
@@ -248,6 +249,7 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     PhotometricResult
     """
     start = time.perf_counter()
+    options = check_method_options(method, options)
     images, mask, valid = _check_images(images, mask, valid)
     plan = plan_solve(method, check_lights(lights, images.shape[0], images.shape[1:]), options)
     k = images.shape[0]

@@ -9,14 +9,28 @@ and fit a shared ``prepare``-d context once per image (the biquadratic method do
 :mod:`pipeline.photometric.biquadratic`); the chunk engine (:mod:`pipeline.photometric.engine`)
 runs either kind.
 
+A method says what it is with attributes rather than by its name (:func:`method_traits`):
+``options``, the :class:`pipeline.core.options.Options` it takes (default
+:class:`pipeline.settings.SelectionOptions`; :func:`pipeline.photometric.estimate_normals`
+refuses any other name); ``renders_rho``, whether its ``params`` are the biquadratic
+coefficients that render rho (the registration check renders frames from them; default
+False: rho = 1); ``wants_anchor``, whether ``specular_anchor='auto'`` corrects its lights on
+specular peaks under a narrow light cone (default False).
+
 Registered here: ``lambert`` (every valid observation), ``lambert-low`` (the selected ones)
 and, for every reflectance model of :mod:`pipeline.reflectance` that is not a method of its
-own, the paper's alternation with that model (fix n, fit the model; fix rho, solve n).
+own, the paper's alternation with that model (fix n, fit the model; fix rho, solve n). An
+installed distribution adds methods under the entry-point group ``psrig.methods``.
 """
+
+from typing import NamedTuple
 
 import numpy as np
 
+from ..errors import InputError
+
 from ..registry import Registry
+from ..settings.normals import AlternationOptions, EstimateOptions, SelectionOptions
 from ..reflectance import MODELS, Geometry, get_model
 from .model import unit
 from .lambert import ILL_CONDITIONED, facing_away, ill_conditioned, lambert_weighted
@@ -24,7 +38,8 @@ from .selection import select_observations
 
 __all__ = ["METHODS", "get_method", "STATUS", "STATUS_NAMES", "STATUS_PALETTE", "MIN_OBS", "ILL_CONDITIONED",
            "base_status", "ill_conditioned", "facing_away", "no_normal", "shading",
-           "lambert_method", "lambert_low_method", "ModelAlternation", "register_model_methods", "share_text"]
+           "lambert_method", "lambert_low_method", "ModelAlternation", "register_model_methods", "share_text",
+           "method_traits", "MethodTraits", "check_method_options"]
 
 STATUS = {"background": 0, "ok": 1, "shadowed": 2, "too_few": 3, "not_converged": 4, "lambert_fallback": 5,
           "shared_shape": 6, "ill_posed": 7}
@@ -36,13 +51,43 @@ STATUS_PALETTE = {"background": (0, 0, 0), "ok": (60, 170, 60), "shadowed": (40,
                   "shared_shape": (0, 160, 170), "ill_posed": (240, 120, 0)}
 MIN_OBS = 3
 
-#: Photometric-stereo methods by name (``psrig normals --method NAME``)
-METHODS = Registry("photometric stereo method")
+#: Photometric-stereo methods by name (``psrig normals --method NAME``; plugins under the
+#: entry-point group ``psrig.methods``)
+METHODS = Registry("photometric stereo method", entry_points="psrig.methods")
+
+
+class MethodTraits(NamedTuple):
+    """What a method says of itself (see the module docstring)."""
+
+    options: type
+    renders_rho: bool
+    wants_anchor: bool
 
 
 def get_method(name):
     """The method called ``name``; the error lists every method (:data:`METHODS`)."""
     return METHODS[name]
+
+
+def method_traits(method):
+    """The :class:`MethodTraits` of a method (a registered object), with the defaults for
+    what it does not say."""
+    return MethodTraits(getattr(method, "options", SelectionOptions), bool(getattr(method, "renders_rho", False)),
+                        bool(getattr(method, "wants_anchor", False)))
+
+
+def check_method_options(name, options):
+    """``options`` for :func:`pipeline.photometric.estimate_normals` with method ``name``,
+    checked against the method's declaration and :class:`pipeline.settings.EstimateOptions`;
+    InputError names an unknown option and lists the known ones."""
+    declared = method_traits(get_method(name)).options
+    known = {**declared.specs(), **EstimateOptions.specs()}
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise InputError(f"unknown option {unknown[0]!r} for the {name} method; known: {', '.join(sorted(known))}")
+    declared.check({k: v for k, v in options.items() if k in declared.specs()}, where=name)
+    EstimateOptions.check({k: v for k, v in options.items() if k not in declared.specs()}, where=name)
+    return dict(options)
 
 
 def share_text(count, total):
@@ -108,6 +153,8 @@ class ModelAlternation:
     pixel's residual changes by at most ``tol`` x its weighted sum of squares, or after
     ``max_iter`` rounds. The model is looked up when the method first runs.
     """
+
+    options = AlternationOptions
 
     def __init__(self, model_name):
         self.model_name = model_name

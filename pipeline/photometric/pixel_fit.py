@@ -35,16 +35,12 @@ is unavailable or ``PSRIG_NO_JIT`` is set; :func:`fit_pixels_numpy` is the refer
 
 import numpy as np
 
+from ..settings.normals import MAX_ITER, TOL_DEG
 from .kernels import fit_pixels_jit, jit_enabled
 from .model import MOMENT_INDEX, cosines, powers, unit
 
 __all__ = ["fit_pixels", "fit_pixels_numpy", "penalty_matrix", "TOL_DEG", "MAX_ITER", "MIN_RIDGE"]
 
-#: a pixel stops when its Gauss-Newton step would turn the normal by less than this (degrees)
-TOL_DEG = 0.1
-#: Levenberg-Marquardt steps at most (accepted or not); measured: DiLiGenT ball, cat and reading
-#: pixels stop after 3-6
-MAX_ITER = 50
 #: the ridge on c without a prior (keeps the 9 x 9 block positive definite)
 MIN_RIDGE = 1e-10
 #: damping: start, and the bound past which a pixel that finds no better step stops

@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from .methods import get_method, method_traits
 from .model import half_vectors
 from .near_lights import PointLights
 
@@ -83,7 +84,7 @@ def predict_frames(result, lights, box, step=1):
     -------
     ndarray (K, h, w)
         albedo x rho(n . h, l . h) x max(n . l, 0), the observations' model (light
-        intensities divided out; rho = 1 for other methods than the biquadratic); 0 off the mask.
+        intensities divided out; rho = 1 for methods whose coefficients do not render it); 0 off the mask.
     """
     rows, cols = slice(box[0], box[1], step), slice(box[2], box[3], step)
     inside = np.asarray(result.mask)[rows, cols]
@@ -91,7 +92,7 @@ def predict_frames(result, lights, box, step=1):
     albedo = result.albedo[rows, cols][inside].astype(np.float32)
     lights = np.asarray(lights, np.float32)
     value = np.maximum(n @ lights.T, 0.0)
-    if result.method == "biquadratic":
+    if method_traits(get_method(result.method)).renders_rho:
         value *= _shape(result.params[rows, cols][inside], n, lights)
     value *= albedo[:, None]
     out = np.zeros((len(lights),) + inside.shape, np.float32)

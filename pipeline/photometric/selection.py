@@ -21,21 +21,15 @@ import math
 import numpy as np
 
 from ..errors import InputError
+from ..settings.normals import CONSENSUS, REJECT_K, SCALE_FLOOR, T_SHADOW, WIDE_SPREAD_DEG, WIDE_T_LOW, WIDE_T_SHADOW
 from .kernels import jit_enabled, select_robust_jit
 from .lambert import facing_away, ill_conditioned, lambert_weighted, solve3
 
 __all__ = ["shadow_weights", "select_robust", "select_darkest", "select_observations", "reuse_selection",
            "widen_undetermined", "resolve_selection",
            "consensus_triplets", "consensus_weights", "light_spread_deg", "WIDE_SPREAD_DEG", "WIDE_T_LOW",
-           "WIDE_T_SHADOW", "T_SHADOW", "CONSENSUS", "MIN_DET", "SCALE_FLOOR", "SCORED"]
+           "WIDE_T_SHADOW", "T_SHADOW", "REJECT_K", "CONSENSUS", "MIN_DET", "SCALE_FLOOR", "SCORED"]
 
-#: observations below this fraction of the pixel's 90th-percentile intensity are shadows
-#: (narrow cones; wide sets use :data:`WIDE_T_SHADOW`)
-T_SHADOW = 0.05
-#: the robust scale's floor, a fraction of the pixel's albedo (:func:`select_robust`)
-SCALE_FLOOR = 0.01
-#: triplets of lights the high-breakdown start of :func:`select_robust` tries per pixel
-CONSENSUS = 48
 #: at most this many of a pixel's lit observations rank its triplets (the cost of the start
 #: grows with them). Measured with 48 triplets (DiLiGenT ball / cat / reading): all 0.849 /
 #: 4.896 / 10.775 degrees, 32 of them 0.844 / 4.887 / 10.831 at about half the cost
@@ -44,7 +38,7 @@ SCORED = 32
 MIN_DET = 1e-3
 
 
-def shadow_weights(obs, valid=None, t_shadow=0.1):
+def shadow_weights(obs, valid=None, t_shadow=T_SHADOW):
     """Weights (N, K): 1 where an observation is above ``t_shadow`` x the pixel's 90th percentile.
 
     Parameters
@@ -65,7 +59,7 @@ def shadow_weights(obs, valid=None, t_shadow=0.1):
     return weights.astype(obs.dtype)
 
 
-def select_robust(obs, lights, base, k_high=2.5, k_low=2.5, iterations=3, min_obs=3, consensus=CONSENSUS,
+def select_robust(obs, lights, base, k_high=REJECT_K, k_low=REJECT_K, iterations=3, min_obs=3, consensus=CONSENSUS,
                   scale_floor=SCALE_FLOOR):
     """Robust Lambertian selection: a high-breakdown start, then MAD reweighting.
 
@@ -219,9 +213,6 @@ def select_darkest(obs, base, t_low, min_obs=3):
 
 
 # ----------------------------------------------------------------------------- policy
-WIDE_SPREAD_DEG = 45.0
-WIDE_T_LOW = 0.35
-WIDE_T_SHADOW = 0.02
 def light_spread_deg(lights):
     """90th percentile of the lights' angles from their mean direction, in degrees."""
     shared = lights if lights.ndim == 2 else lights.reshape(lights.shape[0], -1, 3).mean(axis=1)
@@ -257,7 +248,7 @@ def resolve_selection(lights, options):
     return options
 
 
-def select_observations(obs, valid, lights, t_low=None, t_shadow=T_SHADOW, reject_k=2.5, selection="robust",
+def select_observations(obs, valid, lights, t_low=None, t_shadow=T_SHADOW, reject_k=REJECT_K, selection="robust",
                         consensus=CONSENSUS, scale_floor=SCALE_FLOOR, **_):
     """Apply a selection (options of :func:`resolve_selection`) to a chunk.
 

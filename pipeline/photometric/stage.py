@@ -20,23 +20,25 @@ from ..imageio import read_image, read_mask, write_image, write_mask, write_norm
 from ..lightsio import read_lights_yaml
 from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS
 from ..progress import progress as progress_bar
+from ..settings.normals import EstimateOptions, NormalsOptions
+from ..core.stage import Stage
 from ..yamlio import plain
 from .estimate import estimate_normals
-from .methods import STATUS, STATUS_NAMES, STATUS_PALETTE
+from .methods import METHODS, STATUS, STATUS_NAMES, STATUS_PALETTE, check_method_options, method_traits
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
 from .registration import align_frames, alignable, check_registration
 from .summary import normals_warnings
 
-__all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack",
+__all__ = ["NormalsStage", "NORMALS", "normals_session", "registration_verdict", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack",
            "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "registration_record",
            "STAGE",
            "LIGHT_MODELS", "ALIGN_MODES", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS"]
 
 STAGE = "normals"
-LIGHT_MODELS = ("auto", "directional", "near")
+LIGHT_MODELS = NormalsOptions.specs()["lights_model"][1].choices
 #: what the stage does with frames that do not register with the others (see :func:`normals_session`)
-ALIGN_MODES = ("auto", "off")
+ALIGN_MODES = NormalsOptions.specs()["align"][1].choices
 # Eq. 2's parameters with their monomials; names sort in order and avoid the bare R/G/B/A that
 # EXR readers treat as colour channels.
 PAPER_NAMES = ("brdf.A_x2y2", "brdf.B_x2y", "brdf.C_x2", "brdf.D_xy2", "brdf.E_xy", "brdf.F_x",
@@ -69,6 +71,8 @@ class NormalsRun:
         'near' or 'directional' (:func:`light_model`).
     near_depth : bool
         Near lights at the depth a first solve integrates to (:mod:`pipeline.photometric.near_depth`).
+    align : {'auto', 'off'}
+        What the stage does with frames that do not register with the others.
     mask_rel : str or None
         The session's object mask, when it has one.
     started : float
@@ -85,6 +89,7 @@ class NormalsRun:
     near_depth: bool = True
     mask_rel: str = None
     started: float = field(default_factory=time.time)
+    align: str = "auto"
 
     def solver_lights(self, shape):
         """The used lights as the solver takes them: directions (K, 3) or PointLights for ``shape``."""
@@ -142,18 +147,10 @@ def light_model(lights, requested="auto"):
     return "directional"
 
 
-def stage_params(method, lights_model, options, near_depth=True, align="auto"):
-    """The stage record's parameters: method, the options given (not None), the light model
-    when not 'auto', ``near_depth`` when off and ``align`` when not 'auto' (so records of earlier
-    versions stay current)."""
-    params = {"method": method, **{k: v for k, v in sorted(options.items()) if v is not None}}
-    if align != "auto":
-        params["align"] = align
-    if lights_model != "auto":
-        params["lights_model"] = lights_model
-    if not near_depth:
-        params["near_depth"] = False
-    return params
+def stage_params(options):
+    """The stage record's parameters of :class:`pipeline.settings.NormalsOptions` (or a mapping
+    of them): the method, and every option not at its default."""
+    return NormalsOptions.of(options).record() if not isinstance(options, NormalsOptions) else options.record()
 
 
 def _read_stage_lights(session, frames):
@@ -165,24 +162,25 @@ def _read_stage_lights(session, frames):
     return lights, [f for f in frames if f["light"] not in lights.flags]
 
 
-def begin_normals(session, *, method="biquadratic", force=False, lights_model="auto", near_depth=True, align="auto",
-                  **options):
+def begin_normals(session, *, force=False, **options):
     """Start a normals run: its inputs, whether it is up to date, and the lights it uses.
 
-    Returns a :class:`NormalsRun`, or None when the stage record still matches (and not
-    ``force``). Raises StageError for missing frames or lights.
+    ``options`` are :class:`pipeline.settings.NormalsOptions` (None: the default). Returns a
+    :class:`NormalsRun`, or None when the stage record still matches (and not ``force``).
+    Raises StageError for missing frames or lights, InputError for an unknown option.
     """
+    chosen = NormalsOptions.of(options, where=STAGE)
+    check_method_options(chosen.method, chosen.solver_options())   # before any file is read
     frames = _object_frames(session)
     mask_rel = session.manifest["lights"].get("object_mask")
-    params = stage_params(method, lights_model, options, near_depth, align)
+    params = chosen.record()
     inputs = _inputs(session, frames, mask_rel)
     if not force and session.stage_is_current(STAGE, params, inputs):
         return None
     started = time.time()
     lights, used = _read_stage_lights(session, frames)
-    given = {k: v for k, v in options.items() if v is not None}
-    return NormalsRun(method, given, params, inputs, used, lights, light_model(lights, lights_model), near_depth,
-                      mask_rel, started)
+    return NormalsRun(chosen.method, chosen.solver_options(), params, inputs, used, lights,
+                      light_model(lights, chosen.lights_model), chosen.near_depth, mask_rel, started, chosen.align)
 
 
 class ChannelSums:
@@ -238,12 +236,13 @@ def object_mask(session, run, images):
     return peak > 0.05 * np.percentile(peak, 99.5)
 
 
-def normals_session(session, *, method="biquadratic", force=False, show_progress=True,
-                    lights_model="auto", near_depth=True, align="auto", **options):
+def normals_session(session, *, force=False, show_progress=True, **options):
     """Run the normals stage on a session; returns the stage record (None when up to date).
 
-    ``options`` go to :func:`pipeline.photometric.estimate_normals` (t_low, t_shadow, reject_k,
-    shape_prior, ...). Lights flagged in ``lights.yaml`` are left out and listed in the record.
+    ``options`` are :class:`pipeline.settings.NormalsOptions` (an unknown name is an InputError
+    listing the known ones): the method and its options, which go to
+    :func:`pipeline.photometric.estimate_normals`, and the stage's own. Lights flagged in
+    ``lights.yaml`` are left out and listed in the record.
     ``lights_model`` is 'auto', 'directional' or 'near' (see :func:`light_model`): near lights
     give per-pixel directions and inverse-square falloff from the calibrated positions, at the
     depth a first solve's normals integrate to when ``near_depth`` (default; see
@@ -253,12 +252,10 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     the frames found moved and solves again where the object pins position well
     (:func:`pipeline.photometric.registration.alignable`), 'off' only says.
     """
-    if align not in ALIGN_MODES:
-        raise StageError(f"normals: align must be one of {', '.join(ALIGN_MODES)}, got {align!r}")
-    run = begin_normals(session, method=method, force=force, lights_model=lights_model, near_depth=near_depth,
-                        align=align, **options)
+    run = begin_normals(session, force=force, **options)
     if run is None:
         return None
+    method, near_depth = run.method, run.near_depth
     channels = ChannelSums()
     images, valid = load_object_stack(session, run.frames, run.lights, channels)
     mask = object_mask(session, run, images)
@@ -275,26 +272,37 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
         else:
             result, depth = solve(lights, mask), None
     # after the solve: every frame against the model's rendering of it (the object or camera moved?)
-    result, registration = _register(images, valid, lights, mask, result, method, run.options, align)
+    result, registration = _register(images, valid, lights, mask, result, method, run.options, run.align)
     return record_normals(session, run, result, channels, near_depth=depth, registration=registration)
 
 
-def _register(images, valid, lights, mask, result, method, options, align):
-    """Every frame against the normals' rendering of it (the object or camera moved?); with
-    ``align`` 'auto', the moved frames aligned and the normals solved again. Returns the
-    result to keep and the check's finding."""
-    def solve(stack, usable, chosen=slice(None)):
-        return estimate_normals(stack, lights[chosen], mask, method=method, valid=usable, **options)
-
-    found = check_registration(images, result, lights, valid,
-                               resolve=lambda keep: solve(images[keep], valid[keep], keep))
+def registration_verdict(images, valid, lights, result, align, resolve=None):
+    """Every frame against the normals' rendering of it (the object or camera moved?), and what
+    the stage does about it: the finding of
+    :func:`pipeline.photometric.registration.check_registration`, with ``align`` True when the
+    moved frames are to be aligned and the normals solved again (``align`` 'auto' and the object
+    pins position well), else ``not_aligned`` saying why. Both executors decide with it."""
+    found = check_registration(images, result, lights, valid, resolve=resolve)
     if found.get("moved"):
         if align == "auto" and alignable(found):
-            result = solve(*align_frames(images, valid, found["moved"]))
-            found["aligned"] = True
+            found["align"] = True
         else:
             found["not_aligned"] = "psrig normals --align-frames off" if align != "auto" else \
                 f"the object's shading pins position only to about {found['median_departure_px']:.1f} px"
+    return found
+
+
+def _register(images, valid, lights, mask, result, method, options, align):
+    """:func:`registration_verdict`, and the normals solved again with the moved frames aligned
+    when it says so. Returns the result to keep and the check's finding."""
+    def solve(stack, usable, chosen=slice(None)):
+        return estimate_normals(stack, lights[chosen], mask, method=method, valid=usable, **options)
+
+    found = registration_verdict(images, valid, lights, result, align,
+                                 resolve=lambda keep: solve(images[keep], valid[keep], keep))
+    if found.pop("align", False):
+        result = solve(*align_frames(images, valid, found["moved"]))
+        found["aligned"] = True
     return result, found
 
 
@@ -415,3 +423,33 @@ def model_record(shared_shape, shape_check, anchor):
     if found:
         extra["specular_anchor"] = plain(found)
     return extra
+
+
+class NormalsStage(Stage):
+    """The ``normals`` stage (:class:`pipeline.core.stage.Stage`): :func:`normals_session`."""
+
+    name = STAGE
+    Options = NormalsOptions
+    reads = ("linear/<frame>.exr and <frame>_sat.png of the object frames", LIGHTS,
+             "the object mask the manifest names", "session.yaml: each object frame's id and light")
+
+    def work(self, session, options, *, force, jobs):
+        if not session.path(LIGHTS).is_file():
+            raise StageError(f"{session.path(LIGHTS)}: missing; the calibrate stage makes it")
+        from .summary import normals_summary
+
+        record = normals_session(session, force=force, **options)   # its warnings are in its record
+        return record is not None, normals_summary(record) if record is not None else ""
+
+    def merge(self, recorded, given):
+        """Recorded options replaced by ``given``; when ``given`` changes the method, the recorded
+        options the new method does not take are dropped (they were the old method's)."""
+        if given.get("method", recorded.get("method")) == recorded.get("method") or given["method"] not in METHODS:
+            return {**recorded, **given}   # (an unknown method is refused, with the known ones, by the stage)
+        takes = set(method_traits(METHODS[given["method"]]).options.specs()) | set(NormalsOptions.STAGE_FIELDS) \
+            | set(EstimateOptions.specs())
+        return {**{k: v for k, v in recorded.items() if k in takes}, **given}
+
+
+#: the stage object the runner and the scheduler run
+NORMALS = NormalsStage()

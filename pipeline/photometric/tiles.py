@@ -40,8 +40,8 @@ from .anchor import first_verdict
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)
 from .estimate import check_lights, check_plan_frames, plan_solve, result_from_maps
-from .registration import check_registration
-from .stage import STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
+from .stage import (STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals,
+                    registration_verdict)
 
 __all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
            "tile_context", "frame_check", "SCRATCH", "WHOLE_IMAGE"]
@@ -52,7 +52,8 @@ SCRATCH = TILES_SCRATCH
 CHANNELS = "channels.npy"
 #: :func:`assemble_normals`' answer when the lights need the specular-peak correction
 #: (:mod:`pipeline.photometric.anchor`): one global scale, applied to every pixel, that only a solve of
-#: the whole image can make; the caller then runs the serial normals stage. :func:`plan_normals`
+#: the whole image can make; the caller then runs the serial normals stage. The same when frames
+#: the registration check found moved are to be aligned and solved again. :func:`plan_normals`
 #: answers it before any tile for near lights placed at an integrated depth, for the same reason,
 #: and :func:`assemble_normals` when run again after its scratch was removed without a record.
 WHOLE_IMAGE = "whole-image"
@@ -203,13 +204,10 @@ def _stack_gatherer(folder, solve, gains):
 
 
 def _registration(plan, result):
-    """The serial stage's registration check on the memory-mapped stack; frames found moved are
-    named but not aligned (that would take a second tiled solve)."""
-    found = check_registration(np.load(plan.scratch("stack.npy"), mmap_mode="r"), result, plan.solve.solver_lights,
-                               np.load(plan.scratch("valid.npy"), mmap_mode="r"))
-    if found.get("moved"):
-        found["not_aligned"] = "the tiled stage does not solve again; psrig normals on the session aligns them"
-    return found
+    """The serial stage's registration check on the memory-mapped stack (:func:`registration_verdict`)."""
+    return registration_verdict(np.load(plan.scratch("stack.npy"), mmap_mode="r"),
+                                np.load(plan.scratch("valid.npy"), mmap_mode="r"), plan.solve.solver_lights, result,
+                                plan.run.align)
 
 
 def run_tile(plan, tile, hook=None):
@@ -303,6 +301,10 @@ def assemble_normals(plan, tile_paths=None):
     saved = plan.scratch(CHANNELS)
     channels = ChannelSums(np.load(saved) if saved.is_file() else None)   # none saved: grey frames
     result = result_from_maps(out, mask, plan.solve.method, options, shared)
-    record = record_normals(session, plan.run, result, channels, registration=_registration(plan, result))
+    found = _registration(plan, result)
+    if found.get("align"):   # frames to align and solve again: a whole-image solve, as the serial stage's
+        shutil.rmtree(plan.scratch(), ignore_errors=True)
+        return WHOLE_IMAGE
+    record = record_normals(session, plan.run, result, channels, registration=found)
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record

@@ -9,6 +9,6 @@ bars, status colours), :mod:`.charts` the SVG charts, :mod:`.lights` the lights 
 """
 
 from .compare import compare_sessions
-from .stage import INDEX, THUMB_SIDE, report_session
+from .stage import INDEX, REPORT, THUMB_SIDE, ReportStage, report_session
 
-__all__ = ["report_session", "compare_sessions", "INDEX", "THUMB_SIDE"]
+__all__ = ["report_session", "compare_sessions", "INDEX", "THUMB_SIDE", "ReportStage", "REPORT"]

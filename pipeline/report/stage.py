@@ -24,6 +24,8 @@ from ..imageio import read_image, write_image
 from ..paths import (ALBEDO, DEPTH, LIGHTS, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, REPORT,
                      RESIDUAL, SHADED, STATUS_MAP)
 from ..session import STAGES, now_iso
+from ..settings.report import ReportOptions
+from ..core.stage import Stage
 from . import html, sections
 from .images import robust_max, shrink, tone_map
 from .maps import Figure, bar_figures, choose_scales, map_figures, read_maps
@@ -179,3 +181,22 @@ def _page(session, scores, max_deg, write):
 def _integration_K(session):
     K = ((session.stage("integrate") or {}).get("params") or {}).get("K")
     return None if K is None else np.asarray(K, float)
+
+
+class ReportStage(Stage):
+    """The ``report`` stage (:class:`pipeline.core.stage.Stage`): :func:`report_session`."""
+
+    name = "report"
+    Options = ReportOptions
+    reads = ("every other stage's outputs and record", "truth/ (ground truth, when the session has it)")
+
+    def work(self, session, options, *, force, jobs):
+        return report_session(session, force=force, **options) is not None, ""
+
+    def replay(self, record):
+        params = (record or {}).get("params") or {}
+        return {k: params[k] for k in ("max_deg", "evaluate") if k in params}
+
+
+#: the stage object the runner and the scheduler run
+REPORT = ReportStage()

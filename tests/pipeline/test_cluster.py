@@ -401,3 +401,32 @@ def test_near_lights_at_an_integrated_depth_run_whole_and_match_the_serial_run(t
     outcomes = cluster.run_batch([tiled], tile_pixels=1, show_progress=False)
     assert outcomes[0].error == ""
     assert_identical([tiled], [reference])
+
+
+def make_moved_session(folder, name):
+    """A textured glossy sphere whose last 10 of 24 frames see it shifted by (-2, 1.5) px: the
+    serial stage finds them moved, aligns them and solves again."""
+    from scipy import ndimage
+
+    from tests.pipeline.photometric.ps_synthetic import (cook_torrance_images, hemisphere_lights, import_stack,
+                                                         sphere_normals)
+
+    lights = hemisphere_lights(24, seed=4, min_elevation_deg=50)
+    normals, mask = sphere_normals(96)
+    rows, cols = np.mgrid[:96, :96]
+    images = cook_torrance_images(normals, mask, lights, roughness=0.3, noise=0.002) * \
+        (0.6 + 0.3 * np.sin(cols / 3.0) * np.cos(rows / 4.0))
+    for k in range(14, 24):
+        images[k] = ndimage.shift(images[k], (1.5, -2.0), order=1)
+    return import_stack(folder, name, images / images.max() * 0.9, mask, lights)
+
+
+def test_batch_aligns_moved_frames_like_the_serial_run(tmp_path, client, monkeypatch):
+    _use_client(monkeypatch, client)
+    reference, tiled = (make_moved_session(tmp_path / where, "s") for where in ("serial", "tiled"))
+    assert not runner.run_sessions([reference])[0].error
+    assert Session.open(reference).stage("normals")["registration"]["aligned"]
+    outcomes = cluster.run_batch([tiled], tile_pixels=1, show_progress=False)
+    assert outcomes[0].error == ""
+    assert_identical([tiled], [reference])
+    assert Session.open(tiled).stage("normals")["registration"]["aligned"]
