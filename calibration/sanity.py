@@ -13,10 +13,8 @@ wrong lights without any other trace. Three checks, each refusing with its figur
   and a margin of :data:`HIGHLIGHT_MARGIN` radii around it has its centre and most of its light
   outside the disc, beyond a rim of 3 % of the radius (at least 2 px).
 
-Measured (python -c in docs/calibration.md): rasterised discs of radius 8 to 300 px have an
-outline RMS of 0.24-0.31 px and an overlap of 0.985-1.0; DiLiGenT's object masks given as a
-sphere's: cat 29.7 px rms on r 120 (24.7 %, overlap 0.65), reading 15.0 on 94 (16.0 %, 0.75);
-ellipses of axes 1 : 1.1 3.5 % / 0.94 (passes), 1 : 1.2 6.7 % / 0.89 (refused).
+The bounds sit between what rasterised discs and ellipses of axes 1 : 1.1 give and what object
+masks and 1 : 1.2 ellipses give (docs/calibration.md).
 """
 
 import numpy as np

@@ -16,8 +16,8 @@ the reference the compiled kernels are tested against).
 :func:`single_threaded` limits BLAS (and OpenMP) to one thread, for code whose own threads
 share the cores (the photometric engine's chunks) or whose products are too small for BLAS
 threads (the integration's solver). ``threadpoolctl.threadpool_limits`` looks the thread-pool
-libraries up on every call, which measured 2.6 ms here (numba and LLVM load many libraries),
-four calls per estimation about 4 % of a DiLiGenT one: one controller is kept, looked up again
+libraries up on every call, which is slow once numba and LLVM have loaded many libraries:
+one controller is kept, looked up again
 only when a module was imported since (an import may load another BLAS).
 
 >>> with single_threaded():          # every thread-pool library

@@ -116,7 +116,7 @@ def merge_exposures(images, shutters, saturated, *, reference=None, tolerance=No
     merged = images[by_time[0]] * np.float32(reference / shutters[by_time[0]])
     for index in by_time[1:]:
         take = source == index
-        # np.where beats copyto(where=) and masked assignment here (12 MP: 0.27 s against 0.38)
+        # np.where: faster here than copyto(where=) or a masked assignment (docs/decoding.md)
         merged = np.where(take[..., None] if per_pixel and merged.ndim == 3 else take,
                           images[index] * np.float32(reference / shutters[index]), merged)
     counts = [np.count_nonzero(source == index) for index in range(len(images))]  # 15 x faster than bincount

@@ -19,19 +19,8 @@ is accepted only when the mismatch responds to ``f`` as a global error does (a r
 ``[1 - max_change, 1 + max_change]``); a local bias (e.g. a broad lobe that the biquadratic
 absorbs near the highlight only) gives no such root and the lights are left unchanged.
 
-Measured (benchmarks/diligent.py; tests/pipeline/photometric/test_anchor.py):
-
-* DiLiGenT ball: median mismatch +0.85 degrees at the nominal lights (140 highlight pixels),
-  +0.11 at scale 1.05, root 1.058; mean angular error 2.07 -> 0.91 degrees. Knobs: min_peak
-  1.5 / 2 / 3 -> 0.84 / 0.91 / 0.93; lobe_deg 8 / 10 / 12 / 14 -> 0.84 / 0.96 / 0.91 / 0.90;
-  probe step 0.02 / 0.05 / 0.1 -> 0.94 / 0.91 / 1.10. DiLiGenT cat: no sharp highlights, unchanged.
-* Synthetic Cook-Torrance spheres (roughness 0.05, 96 lights in a 42-degree cone, three light
-  layouts): lights scaled by 0.96 or 1.05 are recovered to +-0.005 with every knob value
-  above (error 1.1-1.4 -> 0.2 degrees); with exact lights the mismatch is |0.01| degree and
-  nothing changes. Exact lights and a diffuse falloff (n . l)^1.1 or ^1.2: error 1.1 -> 0.6
-  and 1.9 -> 0.8-1.0 degrees. Roughness 0.1 with ks 2: the biquadratic normals are too
-  slanted near the highlight only (+1 to +4.5 degrees at slants below 15), no root: unchanged.
-  Roughness >= 0.1 with ks 0.5, and >= 0.2: no pixel passes min_peak: unchanged.
+What it recovers on DiLiGenT ball and on synthetic spheres, and where it rightly leaves the lights
+unchanged: docs/photometric-stereo.md, step 6.
 
 Functions here are vectorised over pixels; :func:`pipeline.photometric.estimate_normals` calls
 them (option ``specular_anchor``). The mismatch is measured on each chunk while its
@@ -50,10 +39,8 @@ __all__ = ["scale_cone", "highlight_mismatch", "first_verdict", "anchor_scale", 
 MIN_PEAK = 2.0      # highlight: the brightest near-mirror observation is >= 2 x the diffuse fit
 LOBE_DEG = 12.0     # window around the normal (in half-vector angle) holding the peak's lights
 #: a highlight counts only when its lobe (the fitted Gaussian's width) is at most this sharp,
-#: degrees: only there is the peak at the half vector. Measured fitted widths (median over the
-#: highlight pixels): DiLiGenT ball 2.3, Cook-Torrance spheres of roughness 0.05 2.4, 0.1 4.3,
-#: 0.15 6.0; at roughness 0.1 and specular weight 1-2 the peaks sit off the half vector and,
-#: counted, made the anchor scale exact lights by 1.03-1.04 (error 0.28 -> 0.9-1.2 degrees).
+#: degrees: only there is the peak at the half vector; broader lobes peak off it and would
+#: scale exact lights (docs/photometric-stereo.md, "Constants").
 MAX_LOBE_DEG = 3.5
 MIN_PIXELS = 50     # highlight pixels needed for a median worth acting on
 MAX_CHANGE = 0.10   # accepted scales: 0.9 .. 1.1 (larger is not a calibration-size error)
@@ -252,8 +239,6 @@ def root_range(mismatch, probe_mismatch, probed, max_change=MAX_CHANGE, draws=RE
     Each solve's mismatches (M,) are resampled on their own; the two sets share most pixels,
     whose mismatches move together, so the range is if anything too wide. A resample whose
     mismatch does not fall as the scale rises counts as a root at the far end of the range.
-    Measured on DiLiGenT ball (143 highlight pixels; 85 where its session flags saturated
-    observations): the roots that small changes upstream gave (1.035-1.079) lie within it.
     """
     rng = np.random.default_rng(seed)
     d0 = np.median(rng.choice(np.asarray(mismatch, float), (draws, len(mismatch))), axis=1)

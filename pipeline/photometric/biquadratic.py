@@ -26,24 +26,19 @@ __all__ = ["Biquadratic", "biquadratic_method", "LAMBERT_SHAPE"]
 
 #: The prior shape when the object has no shared one (several materials, wide light sets):
 #: rho constant. Its pull, scale-free like the shared shape's, keeps a pixel's falloff near
-#: Lambertian unless its observations say otherwise. Measured on a Cook-Torrance sphere
-#: under 80 lights over the hemisphere (roughness 0.4; tests/pipeline/photometric/test_estimate.py):
-#: no prior 2.25 degrees (and 12 % of pixels not converged after 50 steps), strength 1e-3 1.66,
-#: 1e-2 1.24, 1e-1 1.31.
+#: Lambertian unless its observations say otherwise; without it a wide light set leaves many
+#: pixels unconverged (docs/photometric-stereo.md, "Constants").
 LAMBERT_SHAPE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
 #: the prior's strength that holds a pixel to a multiple of the shared shape (status shared_shape)
 SHAPE_ONLY = 1e6
 #: pixels of the image the shared shape is fitted on (a fixed random sample), its
-#: Levenberg-Marquardt steps, and the observations a sampled pixel needs to take part. Measured
-#: (DiLiGenT ball / cat / reading, mean error): 2000 pixels and 12 steps 0.845 / 4.893 / 10.782
-#: degrees, 1000 and 8 0.849 / 4.896 / 10.775, 500 and 8 0.832 / 4.897 / 10.799
+#: Levenberg-Marquardt steps, and the observations a sampled pixel needs to take part: a larger
+#: sample or more steps change no object's error by more than 0.02 degree (docs, "Constants")
 SAMPLE_PIXELS = 1000
 SHAPE_ITERATIONS = 8
 #: steps of a shape fitted again under slightly other lights (the specular anchor's probe and
-#: corrected run), started from the earlier shape and the sample's earlier normals. Measured
-#: (DiLiGenT ball, corrected; cold 8 steps: root 1.0545, 0.817 degrees): warm 2 / 3 / 4 / 8
-#: steps 1.0534 / 1.0534 / 1.0534 / 1.0539, 0.825 / 0.825 / 0.826 / 0.824; reading's verdict and
-#: normals unchanged. The fit then evaluates its terms 7 times rather than 17
+#: corrected run), started from the earlier shape and the sample's earlier normals: the lights
+#: differ by a few percent, so a few steps reach the cold fit's root at a fraction of its cost
 WARM_ITERATIONS = 3
 MIN_SHAPE_OBS = 5
 #: a model is fitted at a pixel when its observations exceed the fit's effective parameters

@@ -41,7 +41,7 @@ CHUNK_KEYS = ("b", "status", "used", "lit", "rss", "params")
 CHUNK_SIZE = 2048
 #: Bytes of observations (float64) a worker holds selected ahead while the shared context is
 #: prepared; the selection's weights make about three times that. 32 MiB is 20 chunks of 2048
-#: pixels x 96 lights, which on that object takes the wall time from 0.46 to 0.42 s (2 cores).
+#: pixels x 96 lights: enough to keep the cores busy while the context is fitted.
 LOOKAHEAD_BYTES = 32 * 2**20
 
 
@@ -291,8 +291,7 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
     # numpy releases the GIL in its array loops, so chunks overlap on several cores.
     n_workers = max(1, min(workers or os.cpu_count() or 1, len(pieces)))
     # One BLAS thread per worker, even with one worker: the products here are thin
-    # ((N, K) @ (K, <= 9)), so BLAS threads only spin, which measured several times slower
-    # (and worse still on a busy machine), besides oversubscribing the cores.
+    # ((N, K) @ (K, <= 9)), so BLAS threads only spin and oversubscribe the cores.
     with single_threaded(), ThreadPoolExecutor(n_workers) as pool:
         # Submitted first, so a worker takes it before any chunk; the other workers select
         # chunks meanwhile.

@@ -8,12 +8,9 @@ direction lies far from the light file's and also explains the frame much better
 light is not where the file says: frames and light file in different orders (two lights
 swapped, a natural against a plain sort), a light that moved after calibration.
 
-Measured on DiLiGenT ball, cat and reading (1000 sampled pixels; 96 lights and random 12- and
-16-light subsets): with the right lights the estimate is within 0.8 / 1.7 / 3.1 degrees (96
-lights) of the file's; in one 12-light subset of reading one frame's estimate is 12 degrees off,
-but explains that frame worse than the file's direction (residual ratio 0.19). Two frames
-swapped (12-48 degrees apart): each estimate lands on the other frame's direction (within 1.6
-degrees of the separation) and explains its frame 3.5-78 x better. Hence a frame is said to be
+With the right lights the estimate lands within a few degrees of the file's, and a swapped
+frame's on the other frame's direction, explaining its frame many times better
+(docs/photometric-stereo.md). Hence a frame is said to be
 off when both hold: :data:`DIRECTION_TOL` and :data:`RESIDUAL_RATIO`. Nothing is changed (with
 96 lights the robust selection keeps a swapped pair out at most pixels, and with 12 leaving the
 pair out did not help); the normals stage names the frames.

@@ -728,9 +728,7 @@ def _select_one(o, lt, lit, k_high, k_low, iterations, min_obs, triplets, solver
                 w[j] = lit[j]
     _lambert(o, lt, w, b)
     # The rounds' passes are branch-free (stores and counts, never a jump on an observation): the
-    # kept/rejected pattern is irregular, and branches on it mispredicted. With the median's early
-    # stop (_kth_by_bits) the first round measured 1.0 -> 0.76 us per pixel and the whole
-    # selection 8-12 % less on DiLiGenT ball, cat and reading, with the same weights
+    # kept/rejected pattern is irregular, and branches on it mispredict
     for _ in range(iterations):
         c = 0
         for j in range(k):

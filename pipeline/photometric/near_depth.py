@@ -9,10 +9,7 @@ smallest photometric residual on a fixed sample of pixels (a coarse scan, then a
 golden-section search around the best), and the relief plus that offset is the depth the next
 solve uses.
 
-Measured on the simulated ``sim-near`` rig (lights about 900 px away; the object stands up to
-112 px off the plane): normals 2.27 deg mean on the plane, 1.00 deg with the true depth, and
-1.01 deg with the integrated relief at the offset the residual picks (offset +40 px; the
-residual was lowest there, 0.0041 against 0.0063 at +20 and 0.0060 at +60).
+What it recovers on the simulated ``sim-near`` rig: docs/near-lights.md.
 
 Limits: one offset for the whole mask (each connected component integrates to its own zero
 mean, so separate objects at different heights share it); orthographic relief (a perspective
@@ -36,9 +33,8 @@ RELIEF_PIXELS = 250_000
 #: statuses without a normal to integrate
 _UNSOLVED = (STATUS["background"], STATUS["too_few"])
 #: depth refinements at most; another follows only when the last cut the mean residual to at
-#: most MAX_RATIO of the one before (the relief moved a lot). On the tests' raised dome under
-#: lights 220 px away (lambert-low): 10.4 degrees on the plane, 0.31 after one pass (residual
-#: x 0.13), 0.007 after two. The sim-near rig: x 0.63 after one pass, a second changed 0.3 %.
+#: most MAX_RATIO of the one before (the relief moved a lot); docs/near-lights.md has the
+#: passes' effect.
 PASSES = 3
 MAX_RATIO = 0.5
 #: offsets scanned over +-half the median light distance before the golden-section search

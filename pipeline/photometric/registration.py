@@ -5,9 +5,8 @@ Photometric stereo assumes that pixel (r, c) sees the same surface point in ever
 bumped mid-capture, an object that settled on its stand or a camera that crept breaks that for
 some frames, and nothing in a per-pixel fit says so: the robust selection leaves the moved
 frames' observations out where they disagree most (edges, texture) and keeps them where the
-shading is smooth, and the normals come out blurred and biased by a degree or more (DiLiGenT
-cat 4.89 -> 6.11 degrees, reading 10.82 -> 12.62, ball 0.81 -> 2.28, with the last 40 of 96
-frames moved by (2.0, -1.5) px; ``benchmarks/registration.py``).
+shading is smooth, and the normals come out blurred and biased by a degree or more
+(docs/photometric-stereo.md, "Frames that moved"; ``benchmarks/registration.py``).
 
 The check renders every frame from the solved model (normals, albedo and the biquadratic
 coefficients, :func:`predict_frames`) and registers each observed frame to its prediction: one
@@ -16,16 +15,13 @@ gradients, coarse to fine (:func:`frame_shifts`). A frame is named when its shif
 the frames' median by more than :data:`MIN_SHIFT_PX` *and* by more than :data:`SPREAD_FACTOR`
 times the frames' median departure: the solved model is itself a blend of every frame, and how
 well shading pins position depends on the object (a textureless sphere's shading moves with its
-light almost as it moves with the object). Measured on DiLiGenT (96 lights; and random 12- and
-16-light subsets), the right frames' departures: ball median 0.96 px, at most 1.97 px; cat 0.04
-/ 0.13; reading 0.01 / 0.05; every subset at most 0.06 / 0.26. Frames moved by 1-6 px were recovered to
-0.05-0.15 px on cat and reading; on ball only moves above about 4 px are named.
+light almost as it moves with the object); the departures measured on DiLiGenT are in
+docs/photometric-stereo.md.
 
 The normals stage (``align_frames``, default 'auto') then aligns the named frames by their
 shift and solves again, where the object pins position well (the right frames' median departure
-at most :data:`ALIGN_PRECISION`): with the last 40 of 96 frames moved, DiLiGenT cat
-6.11 -> 4.85 degrees (4.89 unmoved), reading 12.62 -> 10.84 (10.82); leaving the frames out
-instead gave 6.36 and 11.34 (the lights left are lopsided). Captures are never changed: only the
+at most :data:`ALIGN_PRECISION`); aligning does better than leaving the frames out, whose lights
+left are lopsided (docs). Captures are never changed: only the
 stack in memory is. Directional lights only (near lights' per-pixel
 directions are not rebuilt here). Images larger than :data:`WORK_PIXELS` around the object are
 registered on every n-th pixel (shifts still in full-resolution pixels).
@@ -59,9 +55,8 @@ MIN_FRAMES = 6
 #: solves without the moved frames, at most (see :func:`check_registration`)
 RESOLVES = 2
 #: moved frames are aligned only where the right frames depart from their median by at most this
-#: (px): measured 0.007-0.057 on DiLiGenT cat and reading and on 12-32-light subsets of all three,
-#: 0.9 on ball's 96 lights, whose shading pins position only to a pixel or two (aligning there
-#: by the shifts measured cost 0.03 degrees)
+#: (px): textured objects pin position far better than this, a plain sphere's shading only to a
+#: pixel or two, where aligning by the measured shifts costs (docs, "Constants")
 ALIGN_PRECISION = 0.1
 _TUKEY = 4.685
 

@@ -196,9 +196,8 @@ def _schur_blocks_shared(weights, state, lights, h, y3):
 
 #: The shared-shape prior assumes one material. It is used only when one shape leaves at most
 #: this many times the residual that free per-pixel shapes leave, over what their extra
-#: parameters alone explain. Measured on the 2,000-pixel samples: DiLiGenT ball 1.3, cat 2.1;
-#: the simulated two-material object under a DiLiGenT cone 6.7 and 26 (where the prior cost
-#: 7.95 vs 5.72 and 14.7 vs 2.3 degrees).
+#: parameters alone explain: between what one-material objects and two-material ones give
+#: (docs/photometric-stereo.md, "Constants").
 ONE_MATERIAL_RATIO = 4.0
 #: ... and only tested when pixels have this many selected observations (median): three times
 #: the 12 unknowns of a free pixel, so its fit leaves residual to compare (DiLiGenT: 85-91).
