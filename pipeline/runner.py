@@ -13,6 +13,7 @@ tests may replace with stubs.
 
 import concurrent.futures
 import contextlib
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -250,6 +251,64 @@ def _run_one(root, options, force, start, stop, jobs, token):
     return outcome
 
 
+def _isolated_worker(conn, reader, root, work, token):
+    """Process of :func:`_run_isolated`: one session, its outcome sent on ``conn``."""
+    watch_lifeline(reader)
+    conn.send(_run_one(root, *work, token))
+    conn.close()
+
+
+def _run_isolated(context, tokens, work, jobs):
+    """Run each session of ``tokens`` ({root: lock token}) in a process of its own, ``jobs`` at
+    a time; {root: SessionOutcome}, a session whose process died named as failed with how it
+    died ("worker died: killed by signal 9 (SIGKILL)")."""
+    import multiprocessing.connection
+
+    reader = lifeline(context)
+    waiting, running, outcomes = list(tokens), {}, {}
+    try:
+        while waiting or running:
+            while waiting and len(running) < jobs:
+                root = waiting.pop(0)
+                receive, send = context.Pipe(duplex=False)
+                process = context.Process(target=_isolated_worker, args=(send, reader, root, work, tokens[root]),
+                                          name=f"psrig-run-{Path(root).name}", daemon=True)
+                process.start()
+                send.close()
+                running[process.sentinel] = (root, process, receive)
+            ready = multiprocessing.connection.wait(
+                [conn for _, _, conn in running.values()] + list(running))
+            for sentinel, (root, process, conn) in list(running.items()):
+                if conn not in ready and sentinel not in ready:
+                    continue
+                try:
+                    outcomes[root] = conn.recv()
+                except (EOFError, OSError):
+                    process.join()
+                    outcomes[root] = SessionOutcome(root, error=f"{root}: {_death(process.exitcode)}; the stages "
+                                                    "it finished are kept, run it again to go on")
+                process.join()
+                conn.close()
+                del running[sentinel]
+    finally:
+        for _, process, conn in running.values():
+            process.kill()
+            process.join()
+            conn.close()
+    return outcomes
+
+
+def _death(exitcode):
+    """How a worker process ended, from its exit code (negative: the signal that killed it)."""
+    if exitcode is not None and exitcode < 0:
+        try:
+            name = f" ({signal.Signals(-exitcode).name})"
+        except ValueError:
+            name = ""
+        return f"worker died: killed by signal {-exitcode}{name}"
+    return f"worker died: exit status {exitcode}"
+
+
 @contextlib.contextmanager
 def lock_sessions(roots, command, *, wait=False, echo=None):
     """Context manager: {root: Session holding its lock, or a SessionOutcome with the error}
@@ -307,14 +366,25 @@ def run_sessions(roots, *, options=None, force=False, start=None, stop=None, job
         return outcomes
     outcomes = {}
     context = worker_context()
-    with lock_sessions(roots, "run", wait=wait, echo=echo) as sessions, \
-            concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=watch_lifeline,
-                                                   initargs=(lifeline(context),)) as pool:
+    with lock_sessions(roots, "run", wait=wait, echo=echo) as sessions:
+        tokens = {root: session.lock.token for root, session in sessions.items()
+                  if not isinstance(session, SessionOutcome)}
+        outcomes.update({root: session for root, session in sessions.items() if isinstance(session, SessionOutcome)})
         # one decode worker per session: the sessions already share the cores
-        futures = {root: pool.submit(_run_one, root, options, force, start, stop, 1, session.lock.token)
-                   for root, session in sessions.items() if not isinstance(session, SessionOutcome)}
-        for root in roots:
-            outcomes[root] = futures[root].result() if root in futures else sessions[root]
+        work = (options, force, start, stop, 1)
+        with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=watch_lifeline,
+                                                    initargs=(lifeline(context),)) as pool:
+            futures = {root: pool.submit(_run_one, root, *work, token) for root, token in tokens.items()}
+            for root, future in futures.items():
+                try:
+                    outcomes[root] = future.result()
+                except concurrent.futures.process.BrokenProcessPool:
+                    pass  # a worker died (OOM killer, kill -9): which session's, the pool cannot tell
+        broken = [root for root in tokens if root not in outcomes]
+        if broken:
+            # each unfinished session again in a process of its own, so that a death is its own
+            # (what its stages finished is recorded and is not redone)
+            outcomes.update(_run_isolated(context, {root: tokens[root] for root in broken}, work, jobs))
     outcomes = [outcomes[root] for root in roots]
     if echo:
         for outcome in outcomes:
