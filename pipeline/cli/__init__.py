@@ -51,7 +51,9 @@ def main(argv=None):
         code = args.func(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
     except PsrigError as exc:
-        print(f"psrig {args.command}: error: {exc}", file=sys.stderr)
+        # notes carry what happened while the error unwound (lights that stayed on)
+        notes = "".join(f"; {note}" for note in getattr(exc, "__notes__", ()))
+        print(f"psrig {args.command}: error: {exc}{notes}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"psrig {args.command}: interrupted", file=sys.stderr)
