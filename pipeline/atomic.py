@@ -64,9 +64,10 @@ def atomic_path(path):
         check_target(path)
         os.replace(tmp, path)
         fsync_dir(path.parent)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        _name(exc, path)
         raise
 
 
@@ -101,11 +102,22 @@ def _fsync_file(tmp):
         os.close(fd)
 
 
+def _name(exc, path):
+    """Name the file being written in a disk error that names none or only its temporary file
+    (a full disk fails a write(), which has no file name), so that messages say which file."""
+    if isinstance(exc, OSError) and (exc.filename is None or is_temp_name(Path(str(exc.filename)).name)):
+        exc.filename = str(path)
+
+
 def _temp_beside(path):
     """(open fd, name) of a new temporary file beside ``path`` (folder created if needed)."""
     check_target(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    except OSError as exc:
+        _name(exc, path)
+        raise
     # mkstemp creates 0600; session files are ordinary files, readable as the umask allows.
     os.fchmod(fd, 0o666 & ~_umask())
     return fd, tmp
@@ -129,8 +141,9 @@ def atomic_write_begin(path, data):
     try:
         with open(fd, "wb", closefd=True) as fh:
             fh.write(data)
-    except BaseException:
+    except BaseException as exc:
         discard_temp(tmp)
+        _name(exc, path)
         raise
     return Path(tmp)
 
@@ -146,8 +159,9 @@ def atomic_commit(tmp, path):
         check_target(path)
         os.replace(tmp, path)
         fsync_dir(path.parent)
-    except BaseException:
+    except BaseException as exc:
         discard_temp(tmp)
+        _name(exc, path)
         raise
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import PsrigError, SessionError, StageError
+from .errors import PsrigError, SessionError, StageError, describe_os_error
 from .lock import act_under, lifeline, watch_lifeline, worker_context
 from .paths import LIGHTS
 from .session import STAGES, Session
@@ -177,6 +177,8 @@ def run_stage(session, name, options, force, jobs):
         if not (exc.name or "").startswith(("pipeline.", "calibration.")):
             raise
         raise StageError(f"stage {name}: module {exc.name} is missing from this installation") from None
+    except OSError as exc:   # a full disk, a read-only folder: the stage records nothing
+        raise StageError(f"stage {name}: {describe_os_error(exc)}") from None
     seconds = time.perf_counter() - start
     record = session.stage(name)
     if record is not None and record.get("status", "ok") != "ok":
@@ -248,6 +250,8 @@ def _run_one(root, options, force, start, stop, jobs, token):
                                      jobs=jobs)
     except PsrigError as exc:
         outcome.error = str(exc)
+    except OSError as exc:
+        outcome.error = f"{root}: {describe_os_error(exc)}"
     return outcome
 
 
@@ -362,6 +366,8 @@ def run_sessions(roots, *, options=None, force=False, start=None, stop=None, job
                                              echo=say, wait=wait)
             except PsrigError as exc:
                 outcome.error = str(exc)
+            except OSError as exc:
+                outcome.error = f"{root}: {describe_os_error(exc)}"
             outcomes.append(outcome)
         return outcomes
     outcomes = {}

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import PsrigError, SessionError
+from pipeline.errors import PsrigError, SessionError, describe_os_error
 from pipeline.progress import progress as progress_bar
 from pipeline.session import FOLDERS, MANIFEST, Session, now_iso
 from rig.camera import CameraError, format_exposure
@@ -594,10 +594,15 @@ def _capture_one(session, rig_config, devices, shot):
     extra = dict(shot.extra)
     if levels is not None and shot.light is not None:
         extra["level"] = int(levels[shot.light])
-    session.add_frame(shot.kind, image.data, light=shot.light, suffix=suffix, frame_id=shot.frame_id,
-                      save=False, exposure=_frame_exposure(rig_config, devices.exposure),
-                      captured_at=now_iso(),
-                      camera_file=_printable(image.filename), **extra)
+    try:
+        session.add_frame(shot.kind, image.data, light=shot.light, suffix=suffix, frame_id=shot.frame_id,
+                          save=False, exposure=_frame_exposure(rig_config, devices.exposure),
+                          captured_at=now_iso(),
+                          camera_file=_printable(image.filename), **extra)
+    except OSError as exc:   # a full disk: said in one line, the frames before are kept
+        raise CaptureError(f"{what}: cannot store {describe_os_error(exc)}; not stored. The "
+                           f"{len(session.frames())} frames captured so far are kept: free some space, then "
+                           "run the capture again with --resume", shot.frame_id, shot.light) from None
 
 
 def _set_shutter(devices, shot):

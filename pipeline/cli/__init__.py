@@ -11,7 +11,7 @@ import os
 import sys
 
 from .. import __version__
-from ..errors import PsrigError
+from ..errors import PsrigError, describe_os_error
 from .writing import WRITERS, add_wait_option
 
 __all__ = ["main", "COMMANDS"]
@@ -60,6 +60,9 @@ def main(argv=None):
         return 130
     except BrokenPipeError:
         return _closed_pipe()
+    except OSError as exc:   # a full disk, a read-only or protected folder, a lost mount
+        print(f"psrig {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+        return 1
     return int(code or 0)
 
 

@@ -31,7 +31,7 @@ from .formats import frame_format
 from .frame import check_options, decode_frame
 from .merge import merge_linear
 from .raw import decode_raw
-from ..errors import ImageFileError, PsrigError
+from ..errors import ImageFileError, PsrigError, describe_os_error
 from ..imageio import read_image, read_mask
 from ..lock import lifeline, watch_lifeline, worker_context
 from ..progress import progress
@@ -77,7 +77,7 @@ def _commit(temps):
         try:
             atomic_commit(tmp, path)
         except OSError as exc:
-            error = f"{path}: cannot write ({exc.strerror or exc})"
+            error = f"cannot write {describe_os_error(exc)}"
     return error
 
 
@@ -91,7 +91,7 @@ def _write(path, data, commit=True):
             return None
         return atomic_write_begin(path, data)
     except OSError as exc:
-        raise ImageFileError(f"{path}: cannot write ({exc.strerror or exc})") from None
+        raise ImageFileError(f"cannot write {describe_os_error(exc)}") from None
 
 
 def _init_worker(lifeline):
