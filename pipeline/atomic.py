@@ -2,17 +2,26 @@
 
 A reader (or a process killed mid-write) sees either the old file or the new one, never a
 truncated file.
+
+Nothing is written through a link: the temporary file is created exclusively (``mkstemp``) and
+reopened with ``O_NOFOLLOW``, and a target that is a symlink or not a regular file is refused
+(:class:`~pipeline.errors.SessionError` naming it) rather than silently replaced: a session
+received as an archive may hold links anywhere.
 """
 
 import contextlib
 import os
 import re
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 
+from .errors import SessionError
+
 __all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_path", "fsync_dir",
-           "atomic_write_begin", "atomic_commit", "discard_temp", "sweep_tree", "is_temp_name"]
+           "atomic_write_begin", "atomic_commit", "discard_temp", "sweep_tree", "is_temp_name",
+           "check_target"]
 
 # the names _temp_beside gives: "." + stem + "." + mkstemp's random part + ".tmp" + suffix
 _TEMP_NAME = re.compile(r"^\..*\.[^.]+\.tmp(\.[^.]*)?$")
@@ -51,20 +60,64 @@ def atomic_path(path):
     os.close(fd)
     try:
         yield Path(tmp)
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
+        _fsync_file(tmp)
+        check_target(path)
         os.replace(tmp, path)
         fsync_dir(path.parent)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        _name(exc, path)
         raise
+
+
+def check_target(path):
+    """Refuse to replace ``path`` when it is a symlink or not a regular file (absent is fine).
+
+    Raises
+    ------
+    SessionError
+        Naming the path and what it is.
+    """
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if stat.S_ISREG(mode):
+        return
+    what = (f"a symbolic link to {os.readlink(path)}" if stat.S_ISLNK(mode)
+            else "a folder" if stat.S_ISDIR(mode) else "not a regular file")
+    raise SessionError(f"{path}: is {what}; psrig writes only regular files and never through links "
+                       "(remove it and run again)")
+
+
+def _fsync_file(tmp):
+    """fsync a temporary file of ours, opened without following a link put in its place."""
+    fd = os.open(tmp, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise SessionError(f"{tmp}: the temporary file was replaced by something else; nothing written")
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _name(exc, path):
+    """Name the file being written in a disk error that names none or only its temporary file
+    (a full disk fails a write(), which has no file name), so that messages say which file."""
+    if isinstance(exc, OSError) and (exc.filename is None or is_temp_name(Path(str(exc.filename)).name)):
+        exc.filename = str(path)
 
 
 def _temp_beside(path):
     """(open fd, name) of a new temporary file beside ``path`` (folder created if needed)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    check_target(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    except OSError as exc:
+        _name(exc, path)
+        raise
     # mkstemp creates 0600; session files are ordinary files, readable as the umask allows.
     os.fchmod(fd, 0o666 & ~_umask())
     return fd, tmp
@@ -88,8 +141,9 @@ def atomic_write_begin(path, data):
     try:
         with open(fd, "wb", closefd=True) as fh:
             fh.write(data)
-    except BaseException:
+    except BaseException as exc:
         discard_temp(tmp)
+        _name(exc, path)
         raise
     return Path(tmp)
 
@@ -101,12 +155,13 @@ def atomic_commit(tmp, path):
     """
     path = Path(path)
     try:
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
+        _fsync_file(tmp)
+        check_target(path)
         os.replace(tmp, path)
         fsync_dir(path.parent)
-    except BaseException:
+    except BaseException as exc:
         discard_temp(tmp)
+        _name(exc, path)
         raise
 
 

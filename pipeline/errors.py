@@ -11,6 +11,7 @@ __all__ = [
     "ImageFileError",
     "InputError",
     "StageError",
+    "describe_os_error",
 ]
 
 
@@ -36,3 +37,29 @@ class InputError(PsrigError, ValueError):
 
 class StageError(PsrigError):
     """A processing stage cannot run (missing inputs, stale hashes, failed frames)."""
+
+
+# what an operator does about the errors a full or protected disk gives
+_OS_MEANINGS = {
+    "ENOSPC": "disk full",
+    "EDQUOT": "disk quota exceeded",
+    "EROFS": "read-only file system",
+    "EACCES": "permission denied",
+    "EPERM": "permission denied (operation not permitted)",
+    "EIO": "input/output error (a failing disk or a lost network mount)",
+}
+
+
+def describe_os_error(exc):
+    """One line for an OSError: the path it concerns and what its errno means.
+
+    ``'S/depth/mesh.obj: disk full (No space left on device)'``; without a path, the meaning.
+    """
+    import errno as _errno
+
+    name = _errno.errorcode.get(exc.errno or 0)
+    reason = exc.strerror or (str(exc.args[0]) if exc.args else type(exc).__name__)
+    meaning = _OS_MEANINGS.get(name)
+    text = f"{meaning} ({reason})" if meaning and meaning.lower() != reason.lower() else reason
+    paths = [p for p in (exc.filename, getattr(exc, "filename2", None)) if p is not None]
+    return ": ".join([" -> ".join(map(str, paths))] if paths else []) + (": " if paths else "") + text

@@ -33,6 +33,7 @@ import os
 import signal
 import site
 import socket
+import stat
 import sys
 import threading
 import time
@@ -117,11 +118,27 @@ class SessionLock:
 
 
 def _open(path):
+    """Open (or create) the lock file, never through a symlink: a session received as a folder
+    or an archive may hold a ``.psrig.lock`` linking anywhere, and the holder record written
+    into it would empty the file it names (or create one where a dangling link points)."""
     try:
-        return os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o666)
     except OSError as exc:
+        if exc.errno == errno.ELOOP or os.path.islink(path):
+            raise SessionError(_not_regular(path)) from None
         raise SessionError(f"{path.parent}: cannot open the session's lock file {LOCK_FILE} "
                            f"({exc.strerror}); is the folder writable?") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise SessionError(_not_regular(path))
+    return fd
+
+
+def _not_regular(path):
+    """The refusal of a lock file that is a symlink or not a regular file."""
+    what = f"a symbolic link to {os.readlink(path)}" if os.path.islink(path) else "not a regular file"
+    return (f"{path}: the session's lock file is {what}; psrig never writes through links in a "
+            f"session: remove {LOCK_FILE} (psrig makes it again) and check where the session came from")
 
 
 def _try_lock(path):
@@ -157,7 +174,9 @@ def _write_holder(fd, holder):
 
 def _read_holder(path):
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8") or "null")
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
+        with open(fd, "rb") as fh:
+            data = json.loads(fh.read(1 << 16).decode("utf-8") or "null")
         return Holder(**data) if isinstance(data, dict) else None
     except (OSError, ValueError, TypeError):
         return None
@@ -171,7 +190,7 @@ def _new_holder(command):
 def holder(root):
     """The :class:`Holder` of a session's lock, or None when no process holds it."""
     path = _lock_path(root)
-    if not path.is_file():
+    if not path.is_file() and not path.is_symlink():
         return None
     with _GUARD:
         if path in _HELD:

@@ -13,13 +13,14 @@ is the serial executor; :mod:`pipeline.cluster` runs the same stages on Dask.
 
 import concurrent.futures
 import contextlib
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from calibration.stage import CALIBRATE
 from .decode.stage import DECODE
-from .errors import PsrigError, SessionError, StageError
+from .errors import PsrigError, SessionError, StageError, describe_os_error
 from .integrate.stage import INTEGRATE
 from .lock import act_under, lifeline, watch_lifeline, worker_context
 from .photometric.stage import NORMALS
@@ -94,6 +95,8 @@ def run_stage(session, name, options, force, jobs):
         if not (exc.name or "").startswith(("pipeline.", "calibration.")):
             raise
         raise StageError(f"stage {name}: module {exc.name} is missing from this installation") from None
+    except OSError as exc:   # a full disk, a read-only folder: the stage records nothing
+        raise StageError(f"stage {name}: {describe_os_error(exc)}") from None
     if not isinstance(done, Outcome):   # a plain callable: its note, and the record tells whether it ran
         record = session.stage(name)
         ran = record is not None and record is not before
@@ -168,7 +171,67 @@ def _run_one(root, options, force, start, stop, jobs, token):
                                      jobs=jobs)
     except PsrigError as exc:
         outcome.error = str(exc)
+    except OSError as exc:
+        outcome.error = f"{root}: {describe_os_error(exc)}"
     return outcome
+
+
+def _isolated_worker(conn, reader, root, work, token):
+    """Process of :func:`_run_isolated`: one session, its outcome sent on ``conn``."""
+    watch_lifeline(reader)
+    conn.send(_run_one(root, *work, token))
+    conn.close()
+
+
+def _run_isolated(context, tokens, work, jobs):
+    """Run each session of ``tokens`` ({root: lock token}) in a process of its own, ``jobs`` at
+    a time; {root: SessionOutcome}, a session whose process died named as failed with how it
+    died ("worker died: killed by signal 9 (SIGKILL)")."""
+    import multiprocessing.connection
+
+    reader = lifeline(context)
+    waiting, running, outcomes = list(tokens), {}, {}
+    try:
+        while waiting or running:
+            while waiting and len(running) < jobs:
+                root = waiting.pop(0)
+                receive, send = context.Pipe(duplex=False)
+                process = context.Process(target=_isolated_worker, args=(send, reader, root, work, tokens[root]),
+                                          name=f"psrig-run-{Path(root).name}", daemon=True)
+                process.start()
+                send.close()
+                running[process.sentinel] = (root, process, receive)
+            ready = multiprocessing.connection.wait(
+                [conn for _, _, conn in running.values()] + list(running))
+            for sentinel, (root, process, conn) in list(running.items()):
+                if conn not in ready and sentinel not in ready:
+                    continue
+                try:
+                    outcomes[root] = conn.recv()
+                except (EOFError, OSError):
+                    process.join()
+                    outcomes[root] = SessionOutcome(root, error=f"{root}: {_death(process.exitcode)}; the stages "
+                                                    "it finished are kept, run it again to go on")
+                process.join()
+                conn.close()
+                del running[sentinel]
+    finally:
+        for _, process, conn in running.values():
+            process.kill()
+            process.join()
+            conn.close()
+    return outcomes
+
+
+def _death(exitcode):
+    """How a worker process ended, from its exit code (negative: the signal that killed it)."""
+    if exitcode is not None and exitcode < 0:
+        try:
+            name = f" ({signal.Signals(-exitcode).name})"
+        except ValueError:
+            name = ""
+        return f"worker died: killed by signal {-exitcode}{name}"
+    return f"worker died: exit status {exitcode}"
 
 
 @contextlib.contextmanager
@@ -224,18 +287,31 @@ def run_sessions(roots, *, options=None, force=False, start=None, stop=None, job
                                              echo=say, wait=wait)
             except PsrigError as exc:
                 outcome.error = str(exc)
+            except OSError as exc:
+                outcome.error = f"{root}: {describe_os_error(exc)}"
             outcomes.append(outcome)
         return outcomes
     outcomes = {}
     context = worker_context()
-    with lock_sessions(roots, "run", wait=wait, echo=echo) as sessions, \
-            concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=watch_lifeline,
-                                                   initargs=(lifeline(context),)) as pool:
+    with lock_sessions(roots, "run", wait=wait, echo=echo) as sessions:
+        tokens = {root: session.lock.token for root, session in sessions.items()
+                  if not isinstance(session, SessionOutcome)}
+        outcomes.update({root: session for root, session in sessions.items() if isinstance(session, SessionOutcome)})
         # one decode worker per session: the sessions already share the cores
-        futures = {root: pool.submit(_run_one, root, options, force, start, stop, 1, session.lock.token)
-                   for root, session in sessions.items() if not isinstance(session, SessionOutcome)}
-        for root in roots:
-            outcomes[root] = futures[root].result() if root in futures else sessions[root]
+        work = (options, force, start, stop, 1)
+        with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=watch_lifeline,
+                                                    initargs=(lifeline(context),)) as pool:
+            futures = {root: pool.submit(_run_one, root, *work, token) for root, token in tokens.items()}
+            for root, future in futures.items():
+                try:
+                    outcomes[root] = future.result()
+                except concurrent.futures.process.BrokenProcessPool:
+                    pass  # a worker died (OOM killer, kill -9): which session's, the pool cannot tell
+        broken = [root for root in tokens if root not in outcomes]
+        if broken:
+            # each unfinished session again in a process of its own, so that a death is its own
+            # (what its stages finished is recorded and is not redone)
+            outcomes.update(_run_isolated(context, {root: tokens[root] for root in broken}, work, jobs))
     outcomes = [outcomes[root] for root in roots]
     if echo:
         for outcome in outcomes:

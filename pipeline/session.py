@@ -22,6 +22,7 @@ import datetime as _dt
 import hashlib
 import json
 import math
+import os
 import re
 from pathlib import Path, PurePosixPath
 
@@ -286,9 +287,14 @@ class Session:
     def path(self, rel):
         """Absolute path of a session-relative path, refusing anything outside the session."""
         check_relative(str(rel), f"{self.root / MANIFEST}: path")
-        full = (self.root / rel).resolve()
+        given = self.root / rel
+        full = given.resolve()
         if not full.is_relative_to(self.real_root):
             raise SessionError(f"{self.root}: path {rel!r} resolves outside the session folder")
+        if full != self.real_root / rel and os.path.islink(given):
+            # a link to another file of the session: a writer would replace that file (a raw frame)
+            raise SessionError(f"{given}: is a symbolic link to {os.readlink(given)}; a session's files "
+                               "are never links (replace it by the file itself)")
         return full
 
     def rel(self, path):

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import PsrigError, SessionError
+from pipeline.errors import PsrigError, SessionError, describe_os_error
 from pipeline.progress import progress as progress_bar
 from pipeline.session import FOLDERS, MANIFEST, Session, now_iso
 from rig.camera import CameraError, format_exposure
@@ -574,12 +574,13 @@ def _capture_one(session, rig_config, devices, shot):
         _set_shutter(devices, shot)
         image = _expose_held(devices, shot, what)
     except (LightError, CameraError) as exc:
-        dark = ("the lights are switched off" if getattr(devices.lights, "is_open", True)
-                else "the light controller is gone (its watchdog switches the lights off)")
-        raise CaptureError(
+        dark, left_on = _switch_off(devices.lights)
+        error = CaptureError(
             f"{session.root}: {what}: {exc}. Stopped: {dark}; the {len(session.frames())} frames "
             "captured so far are kept: run the capture again with --resume to complete the session",
-            shot.frame_id, shot.light) from exc
+            shot.frame_id, shot.light)
+        error.lights_left_on = left_on
+        raise error from exc
     if image.size != len(image.data):
         raise CaptureError(f"{session.root}: {what}: the camera delivered {len(image.data)} of "
                            f"{image.size} bytes; not stored", shot.frame_id, shot.light)
@@ -593,10 +594,15 @@ def _capture_one(session, rig_config, devices, shot):
     extra = dict(shot.extra)
     if levels is not None and shot.light is not None:
         extra["level"] = int(levels[shot.light])
-    session.add_frame(shot.kind, image.data, light=shot.light, suffix=suffix, frame_id=shot.frame_id,
-                      save=False, exposure=_frame_exposure(rig_config, devices.exposure),
-                      captured_at=now_iso(),
-                      camera_file=_printable(image.filename), **extra)
+    try:
+        session.add_frame(shot.kind, image.data, light=shot.light, suffix=suffix, frame_id=shot.frame_id,
+                          save=False, exposure=_frame_exposure(rig_config, devices.exposure),
+                          captured_at=now_iso(),
+                          camera_file=_printable(image.filename), **extra)
+    except OSError as exc:   # a full disk: said in one line, the frames before are kept
+        raise CaptureError(f"{what}: cannot store {describe_os_error(exc)}; not stored. The "
+                           f"{len(session.frames())} frames captured so far are kept: free some space, then "
+                           "run the capture again with --resume", shot.frame_id, shot.light) from None
 
 
 def _set_shutter(devices, shot):
@@ -646,14 +652,46 @@ def _longest_wait(devices):
     return float(getattr(devices.camera, "timeout", 30.0)) + float(shutter) + 5.0
 
 
+def _switch_off(lights):
+    """Switch the lights off after a failed frame; (what the operator is told of the lights,
+    the warning when some may still be on, else None).
+
+    "The lights are switched off" is said only when the controller acknowledged the OFF."""
+    if not getattr(lights, "is_open", True):
+        return "the light controller is gone (its watchdog switches the lights off)", None
+    try:
+        lights.off()
+    except LightError as exc:
+        warning = left_on_warning(lights, exc)
+        return warning, warning
+    return "the lights are switched off", None
+
+
+def left_on_warning(lights, exc):
+    """The operator's warning that lights may still be on after ``exc`` refused the OFF."""
+    which = lights.describe_maybe_lit() if hasattr(lights, "describe_maybe_lit") else "the lights"
+    which = which or "the lights"
+    verb = "may still be on" if which != "the lights" else "may not be switched off"
+    return (f"{which} {verb} (switching the lights off failed: {exc}): check the rig and switch "
+            "them off by hand")
+
+
 def _lights_off(lights, raise_errors):
-    """OFF, confirmed; a failure is raised only when nothing else is already being raised."""
+    """OFF, confirmed; a failure is raised only when nothing else is already being raised (the
+    one being raised then says which lights may be on, in ``lights_left_on`` and a note)."""
     if not getattr(lights, "is_open", True):
         return  # a vanished controller cannot be told; its watchdog darkens it
     in_flight = sys.exc_info()[1]
     try:
         lights.off()
     except LightError as exc:
+        warning = left_on_warning(lights, exc)
         if raise_errors or in_flight is None:
-            raise CaptureError(f"capture finished but switching the lights off failed: {exc}") from exc
-        in_flight.add_note(f"also, switching the lights off failed: {exc}")
+            raise CaptureError(f"capture finished but {warning}") from exc
+        if getattr(in_flight, "lights_left_on", None) is None:   # not said already
+            in_flight.lights_left_on = warning
+            in_flight.add_note(f"also, {warning}")
+        return
+    if getattr(in_flight, "lights_left_on", None) is not None:
+        in_flight.add_note("the lights were switched off after all")
+        in_flight.lights_left_on = None

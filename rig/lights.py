@@ -127,6 +127,23 @@ class LightController(abc.ABC):
     def state(self):
         """The light the controller reports lit (int), or None when all are off."""
 
+    #: Lights that may be on (set of indices): every light sent ``ON`` since the last ``OFF``
+    #: the controller acknowledged; None when unknown (a controller that does not track it).
+    maybe_lit = None
+
+    def describe_maybe_lit(self):
+        """'light 4' / 'lights 4 and 5' that may still be on, or 'the lights' when unknown;
+        '' when the last OFF was acknowledged."""
+        lit = self.maybe_lit
+        if lit is None:
+            return "the lights"
+        lit = sorted(lit)
+        if not lit:
+            return ""
+        if len(lit) == 1:
+            return f"light {lit[0]}"
+        return f"lights {', '.join(map(str, lit[:-1]))} and {lit[-1]}"
+
     def check_index(self, index):
         """Return ``index`` as an int, or raise :class:`LightIndexError` when out of range."""
         try:
@@ -196,6 +213,7 @@ class SerialLightController(LightController):
         self.watchdog = None if not watchdog else float(watchdog)
         self.count = None
         self.lit = None  # the light last confirmed on by its OK, or None
+        self.maybe_lit = set()
         self._serial = None
         # capture's keep-alive thread and the main thread share the line: one exchange at a time
         self._line_lock = threading.RLock()
@@ -261,17 +279,24 @@ class SerialLightController(LightController):
         """Light exactly light ``index``; raises unless the controller confirms with ``OK ON i``."""
         index = self.check_index(index)
         self.lit = None
+        was_lit = index in self.maybe_lit
+        self.maybe_lit.add(index)   # a command whose reply was lost may have been carried out
         try:
             self._transact(f"ON {index}", re.compile(rf"OK ON {index}"), light=index)
-        except LightError:
+        except LightError as exc:
+            # every attempt answered ERR: not carried out (the lights stay as they were)
+            if not was_lit and (isinstance(exc, LightCommandError) or getattr(exc, "refused", False)):
+                self.maybe_lit.discard(index)
             self._off_best_effort()
             raise
         self.lit = index
+        self.maybe_lit = {index}
 
     def off(self):
         """Switch every light off (``OFF`` -> ``OK OFF``)."""
         self._transact("OFF", re.compile("OK OFF"))
         self.lit = None
+        self.maybe_lit = set()
 
     def set_level(self, index, level):
         """Set light ``index``'s brightness to ``level`` (int 0-255)."""
@@ -313,7 +338,8 @@ class SerialLightController(LightController):
         try:
             self._transact("OFF", re.compile("OK OFF"), retries=0)
         except LightError:
-            pass
+            return
+        self.maybe_lit = set()
 
     # -- the exchange -------------------------------------------------------------------------
 
@@ -323,7 +349,7 @@ class SerialLightController(LightController):
         if self._serial is None:
             raise LightConnectionError(f"{what}: the light controller is not open")
         attempts = 1 + (self.retries if retries is None else retries)
-        problems = []
+        problems, refused = [], 0   # refused: attempts answered ERR (a command not carried out)
         for _ in range(attempts):
             with self._line_lock:
                 line = self._exchange(command, what)
@@ -339,8 +365,11 @@ class SerialLightController(LightController):
             if match:
                 return match
             problems.append(self._judge_reply(line, what, light, expect_text or pattern.pattern))
+            refused += _ERR_REPLY.fullmatch(line) is not None
         kind = LightTimeout if all(p.startswith("no reply") for p in problems) else LightProtocolError
-        raise kind(f"{what}: {'; then '.join(problems)} ({attempts} attempt{'s' * (attempts > 1)})")
+        error = kind(f"{what}: {'; then '.join(problems)} ({attempts} attempt{'s' * (attempts > 1)})")
+        error.refused = refused == attempts
+        raise error
 
     def _exchange(self, command, what):
         """One write + read; returns the reply line, or None on a (write or read) timeout."""

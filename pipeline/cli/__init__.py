@@ -11,7 +11,7 @@ import os
 import sys
 
 from .. import __version__
-from ..errors import PsrigError
+from ..errors import PsrigError, describe_os_error
 from .writing import WRITERS, add_wait_option
 
 __all__ = ["main", "COMMANDS"]
@@ -53,13 +53,18 @@ def main(argv=None):
         code = args.func(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
     except PsrigError as exc:
-        print(f"psrig {args.command}: error: {exc}", file=sys.stderr)
+        # notes carry what happened while the error unwound (lights that stayed on)
+        notes = "".join(f"; {note}" for note in getattr(exc, "__notes__", ()))
+        print(f"psrig {args.command}: error: {exc}{notes}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"psrig {args.command}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         return _closed_pipe()
+    except OSError as exc:   # a full disk, a read-only or protected folder, a lost mount
+        print(f"psrig {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+        return 1
     return int(code or 0)
 
 

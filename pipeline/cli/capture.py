@@ -71,7 +71,9 @@ def run(args):
     except KeyboardInterrupt as exc:
         reason = str(exc) or "interrupted"
         config = f" --config {args.config}" if args.config else ""
-        print(f"psrig capture: {reason}; lights switched off, the frames captured so far are kept. "
+        left_on = getattr(exc, "lights_left_on", None)
+        lights = f"{left_on};" if left_on else "lights switched off,"
+        print(f"psrig capture: {reason}; {lights} the frames captured so far are kept. "
               f"Complete with: psrig capture {args.session} --rig {args.rig}{config} --resume",
               file=sys.stderr)
         return 130

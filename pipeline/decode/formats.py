@@ -16,7 +16,20 @@ import rawpy
 
 from ..errors import ImageFileError
 
-__all__ = ["FrameFormat", "frame_format", "readable_formats", "RAW_EXAMPLES"]
+__all__ = ["FrameFormat", "frame_format", "readable_formats", "RAW_EXAMPLES", "FrameTooLarge",
+           "MAX_IMAGE_PIXELS", "IMAGE_DECODE_BYTES_PER_PIXEL", "check_image_size"]
+
+#: Most pixels an image frame may have. The largest camera frames (pixel-shift composites) are
+#: about 400 MP; a PNG of a flat colour claiming 30000 x 30000 is under 1 MB on disk, so the
+#: file's size bounds nothing (unlike a raw file's) and the header's size is checked instead.
+MAX_IMAGE_PIXELS = 400_000_000
+#: Bytes of memory decoding an image frame takes per pixel (the stored pixels, the float32 RGB
+#: frame, its saturation flags, the linear file's encoding buffers).
+IMAGE_DECODE_BYTES_PER_PIXEL = 32
+
+
+class FrameTooLarge(ImageFileError):
+    """A frame's header claims more pixels than psrig decodes, or than this machine can hold."""
 
 #: a few of the camera raw formats LibRaw reads, for messages
 RAW_EXAMPLES = "DNG, CR2, CR3, NEF, ARW, RAF, ORF, RW2, PEF"
@@ -78,14 +91,33 @@ def frame_format(path):
     return _frame_format(str(path), stat.st_mtime_ns, stat.st_size)
 
 
+def check_image_size(path, height, width):
+    """FrameTooLarge when an image frame of ``height`` x ``width`` pixels (from its header) is
+    beyond :data:`MAX_IMAGE_PIXELS` or its decoding (:data:`IMAGE_DECODE_BYTES_PER_PIXEL`)
+    beyond half of this machine's memory; checked before any pixel is read."""
+    from .raw import _memory
+
+    pixels = int(height) * int(width)
+    size = f"{width} x {height} image ({pixels / 1e6:.1f} MP)"
+    if pixels > MAX_IMAGE_PIXELS:
+        raise FrameTooLarge(f"{path}: a {size} is more than the {MAX_IMAGE_PIXELS / 1e6:.0f} MP psrig decodes "
+                            "as a frame; a damaged or forged file, or crop or scale it down")
+    need, budget = pixels * IMAGE_DECODE_BYTES_PER_PIXEL, _memory() // 2
+    if budget and need > budget:
+        raise FrameTooLarge(f"{path}: a {size} needs about {need / 2**30:.1f} GiB to decode, more than "
+                            f"half of this machine's {2 * budget / 2**30:.1f} GiB")
+
+
 @lru_cache(maxsize=64)
 def _frame_format(path, mtime_ns, size):
     found = _oiio_format(path)
     if found is not None and found[0] != "tiff":
+        check_image_size(path, *found[1])
         return FrameFormat("image", *found)
     if _is_camera_raw(path):
         return FrameFormat("raw", "raw")
     if found is not None:
+        check_image_size(path, *found[1])
         return FrameFormat("image", *found)
     raise ImageFileError(f"{path}: neither an image nor a camera raw file psrig can decode; "
                          f"{readable_formats()}")

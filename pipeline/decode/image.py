@@ -12,6 +12,7 @@ import OpenImageIO as oiio
 
 from ..errors import ImageFileError, InputError
 from ..gamma import inverse_gamma_lut, parse_gamma
+from .formats import check_image_size
 from .transfer import choose_transfer, declared_transfer
 
 __all__ = ["decode_image", "read_native"]
@@ -33,6 +34,7 @@ def read_native(path):
         raise ImageFileError(f"{path}: cannot read image ({oiio.geterror() or 'unknown format'})")
     try:
         spec, name = inp.spec(), inp.format_name()
+        check_image_size(path, spec.height, spec.width)   # before any pixel is read
         # stored type (the default would convert to float); 1-, 2- and 4-bit files come as uint8
         pixels = inp.read_image(oiio.UNKNOWN)
         if pixels is None:

@@ -18,6 +18,7 @@ every commit before it returns, so nothing is recorded before it is on disk.
 import concurrent.futures as futures
 import contextlib
 import hashlib
+import json
 import os
 import signal
 import threading
@@ -31,10 +32,11 @@ from .formats import frame_format
 from .frame import check_options, decode_frame
 from .merge import merge_linear
 from .raw import decode_raw
-from ..errors import ImageFileError, PsrigError
+from ..errors import ImageFileError, PsrigError, describe_os_error
 from ..imageio import read_image, read_mask
 from ..lock import lifeline, watch_lifeline, worker_context
 from ..progress import progress
+from ..yamlio import plain
 
 __all__ = ["run_tasks", "decode_task", "write_saturation", "encode_saturation", "start_pool",
            "prepare_pool", "release_workspace"]
@@ -66,9 +68,10 @@ def write_saturation(path, saturated):
     return hashlib.sha256(data).hexdigest()
 
 
-def _commit(temps):
+def _commit(temps, receipt=None):
     """Finish the atomic writes {final path: temporary file}; None or the error message.
-    Every temporary file is committed or removed."""
+    Every temporary file is committed or removed. Then, when all are in place, write
+    ``receipt`` (:func:`write_receipt`)."""
     error = None
     for path, tmp in temps.items():
         if error is not None:
@@ -77,8 +80,25 @@ def _commit(temps):
         try:
             atomic_commit(tmp, path)
         except OSError as exc:
-            error = f"{path}: cannot write ({exc.strerror or exc})"
+            error = f"cannot write {describe_os_error(exc)}"
+    if error is None and receipt is not None and temps:
+        write_receipt(receipt)
     return error
+
+
+def write_receipt(receipt):
+    """Write a frame's receipt (a dict with ``path``, JSON) beside its outputs, once they are in
+    place: what it was decoded from and with, and its outputs' hashes, so that a run killed
+    before recording the frame adopts it instead of decoding it again (:mod:`.stage`).
+
+    Renamed into place but not fsynced: a receipt lost to a power cut costs a decode, never a
+    wrong frame (the outputs' hashes are checked before one is adopted). A receipt that cannot
+    be written is no error (the frame is recorded as usual)."""
+    try:
+        tmp = atomic_write_begin(receipt["path"], json.dumps(plain(receipt)).encode())
+        os.replace(tmp, receipt["path"])
+    except (OSError, PsrigError):
+        pass
 
 
 def _write(path, data, commit=True):
@@ -91,7 +111,7 @@ def _write(path, data, commit=True):
             return None
         return atomic_write_begin(path, data)
     except OSError as exc:
-        raise ImageFileError(f"{path}: cannot write ({exc.strerror or exc})") from None
+        raise ImageFileError(f"cannot write {describe_os_error(exc)}") from None
 
 
 def _init_worker(lifeline):
@@ -271,7 +291,7 @@ def start_pool(jobs):
                                        initializer=_init_worker, initargs=(lifeline(context),))
 
 
-def run_tasks(tasks, *, jobs=None, show=True, desc="decode", pool=None, on_done=None):
+def run_tasks(tasks, *, jobs=None, show=True, desc="decode", pool=None, on_done=None, on_tick=None):
     """Run :func:`decode_task` over ``tasks``: in ``pool`` when given, else in-process for
     one job and in a new pool for more. Returns once every output is on disk.
 
@@ -281,6 +301,9 @@ def run_tasks(tasks, *, jobs=None, show=True, desc="decode", pool=None, on_done=
         ``on_done(frame_id, info, error, hashes)``, called in this thread for each frame as soon
         as its outputs are on disk (or it failed), so the caller can record it before the rest
         are done.
+    on_tick : callable, optional
+        Called in this thread about every :data:`TICK` seconds while pooled frames are
+        decoded, so the caller can record frames reported a while ago.
 
     Returns
     -------
@@ -289,7 +312,7 @@ def run_tasks(tasks, *, jobs=None, show=True, desc="decode", pool=None, on_done=
     """
     jobs = min(jobs or os.cpu_count() or 1, len(tasks))
     bar = progress(total=len(tasks), desc=desc, unit="frame", disable=None if show else True)
-    finished = _Finished(on_done)
+    finished = _Finished(on_done, on_tick)
     # fsync mostly waits on the disk (GIL released): a few threads keep it busy while the
     # next frames are decoded (in the pool, or here with one job).
     with bar, futures.ThreadPoolExecutor(max_workers=max(jobs, 2),
@@ -306,25 +329,47 @@ def run_tasks(tasks, *, jobs=None, show=True, desc="decode", pool=None, on_done=
     return finished.results
 
 
+def _receipt(task, outcome):
+    """The receipt of a decoded frame (its task's ``receipt`` with the info and the outputs'
+    hashes), or None."""
+    info, error, hashes = outcome[:3]
+    if error or not task.get("receipt"):
+        return None
+    return {**task["receipt"], "info": info, "outputs": {os.path.basename(p): h for p, h in hashes.items()}}
+
+
 def _run_here(tasks, finished, committer, bar):
     try:
         for task in tasks:
+            finished.drain()   # what is committed is reported before the next frame starts
             frame_id, *outcome = decode_task(task, commit=False)
             with _deferred_interrupt():   # a commit started is a commit reported
-                finished.add(frame_id, tuple(outcome), committer.submit(_commit, outcome[3]))
+                finished.add(frame_id, tuple(outcome),
+                             committer.submit(_commit, outcome[3], _receipt(task, outcome)))
             bar.update()
     finally:
         release_workspace()  # this is the caller's process: give the memory back
 
 
+#: Seconds between looks at the commits of a pooled decode while no frame arrives: a frame
+#: committed is reported (and recorded when due) within this time, not when the next one arrives.
+TICK = 0.25
+
+
 def _run_pooled(running, tasks, finished, committer, bar):
-    pending = {running.submit(decode_task, task, commit=False): task["id"] for task in tasks}
+    pending = {running.submit(decode_task, task, commit=False): task for task in tasks}
     try:
-        for future in futures.as_completed(pending):
-            outcome = _outcome(future)
-            with _deferred_interrupt():   # a commit started is a commit reported
-                finished.add(pending[future], outcome, committer.submit(_commit, outcome[3]))
-            bar.update()
+        waiting = set(pending)
+        while waiting:
+            done, waiting = futures.wait(waiting, timeout=TICK, return_when=futures.FIRST_COMPLETED)
+            for future in done:
+                outcome = _outcome(future)
+                task = pending[future]
+                with _deferred_interrupt():   # a commit started is a commit reported
+                    finished.add(task["id"], outcome, committer.submit(_commit, outcome[3], _receipt(task, outcome)))
+                bar.update()
+            finished.drain()
+            finished.tick()
     except BaseException:
         for future in pending:  # interrupted: start no further frame
             future.cancel()
@@ -335,8 +380,14 @@ class _Finished:
     """Frames decoded whose commits may still run: each is reported (``on_done``) and kept in
     ``results`` once its commit is over, in the order the frames finished."""
 
-    def __init__(self, on_done):
-        self.on_done, self.waiting, self.results = on_done, [], {}
+    def __init__(self, on_done, on_tick=None):
+        self.on_done, self.on_tick, self.waiting, self.results = on_done, on_tick, [], {}
+
+    def tick(self):
+        """Let the caller record what is due while no frame arrives."""
+        if self.on_tick is not None:
+            with _deferred_interrupt():
+                self.on_tick()
 
     def add(self, frame_id, outcome, commit):
         self.waiting.append((frame_id, outcome, commit))

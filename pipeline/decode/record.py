@@ -61,6 +61,9 @@ def describe(record):
         lines.append(f"{len(ids)} raw frame(s) from a {sensor} sensor decoded by LibRaw's linear postprocess "
                      "(the mosaic path is for Bayer sensors; dark values are clipped at black)")
     lines += describe_merged(record.get("merged"))
+    if record.get("adopted"):
+        lines.append(f"{len(record['adopted'])} frame(s) decoded by a run that was stopped before recording them "
+                     "were kept (their receipts and outputs' hashes checked)")
     if record.get("linear_bytes"):
         counts = record.get("compression") or {}
         done = sum(counts.values())

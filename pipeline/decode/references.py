@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_path
 from ..brackets import format_seconds, frame_shutter, same_shutter
 from ..imageio import read_image, read_mask
 from ..session import LIT_KINDS
@@ -73,6 +74,8 @@ def write_reference(session, frames, kind, folder):
     Path(folder).mkdir(parents=True, exist_ok=True)
     paths = {"kind": kind, "mean": str(Path(folder) / "mean.npy"),
              "saturated": str(Path(folder) / "saturated.npy")}
-    np.save(paths["mean"], (total / len(frames)).astype(np.float32))
-    np.save(paths["saturated"], saturated)
+    with atomic_path(paths["mean"]) as tmp:
+        np.save(tmp, (total / len(frames)).astype(np.float32))
+    with atomic_path(paths["saturated"]) as tmp:
+        np.save(tmp, saturated)
     return paths

@@ -31,6 +31,7 @@ back. 12 MP frames, 2 cores, jobs 2 (benchmarks/decode.py, load average about 2)
 """
 
 import contextlib
+import json
 import os
 import shutil
 import time
@@ -46,11 +47,14 @@ from ..errors import InputError, PsrigError, StageError
 from ..paths import DECODE_SCRATCH
 from ..settings.decode import DecodeOptions
 from ..core.stage import Stage
+from ..yamlio import plain
 
 __all__ = ["decode_frame", "decode_session", "REFERENCE_KINDS", "DecodeStage", "DECODE"]
 
 #: An interrupted run loses at most this many manifest saves' worth of decoding (see _Run).
 RECORD_SHARE = 20
+#: ... and at most this many seconds' worth, however long a save takes.
+RECORD_INTERVAL = 1.0
 _LIT_KINDS = ("object", "sphere", "target")
 
 
@@ -128,11 +132,46 @@ def _merge_reusable(session, previous, params, group, digest):
     return entry.get("inputs_sha256") == digest and _outputs_intact(session, previous, group.id)
 
 
-def _task(session, frame, options, size, reference=None):
+def _task(session, frame, options, size, reference=None, receipt=None):
     return {"id": frame["id"], "source": str(session.path(frame["file"])),
             "linear": str(session.linear_path(frame)),
             "saturation": str(session.saturation_path(frame)),
-            "options": options, "size": size, "reference": reference}
+            "options": options, "size": size, "reference": reference, "receipt": receipt}
+
+
+def receipt_path(session, frame_id):
+    """Where a frame's receipt lies until the stage record lists the frame: hidden, in linear/."""
+    return session.linear_path(frame_id).with_name(f".{frame_id}.receipt.json")
+
+
+def _receipt_base(session, params, inputs, frame, references):
+    """What a frame's receipt says before it is decoded: its file and hash, the options, the
+    frames subtracted from it (ids, files, hashes)."""
+    return {"path": str(receipt_path(session, frame["id"])), "frame": frame["id"], "file": frame["file"],
+            "source_sha256": inputs.get(frame["file"]), "params": plain(params),
+            "references": [[f["id"], f["file"], inputs.get(f["file"])] for f in references]}
+
+
+def _adoptable(session, params, inputs, frame, references):
+    """(info, {output rel: sha256}) of a frame a killed run decoded and renamed into place but
+    did not record, from its receipt, when the receipt matches this run (same file and hash,
+    options and subtracted frames) and the outputs on disk still have its hashes; else None."""
+    path = receipt_path(session, frame["id"])
+    try:
+        receipt = json.loads(path.read_text(encoding="utf-8"))
+        base = _receipt_base(session, params, inputs, frame, references)
+        if any(receipt.get(key) != base[key] for key in ("frame", "file", "source_sha256", "params", "references")):
+            return None
+        outputs = {}
+        for output in (session.linear_path(frame), session.saturation_path(frame)):
+            rel = session.rel(output)
+            digest = receipt["outputs"][output.name]
+            if not output.is_file() or session.hash_inputs([rel])[rel] != digest:
+                return None
+            outputs[rel] = digest
+        return dict(receipt["info"]), outputs
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, PsrigError):
+        return None
 
 
 class _Run:
@@ -161,6 +200,9 @@ class _Run:
         self.started = time.perf_counter()
         self.unrecorded = 0  # frames finished since the stage record was last saved
         self.saved_at, self.save_cost = 0.0, 0.0
+        self.receipts = []  # receipts of frames finished since the record was last saved
+        self.adopted = []  # frames a killed run left decoded, taken from their receipts
+        self.force = False
 
     def decode(self, frames, reference=None, references=()):
         """Decode the frames whose outputs are not reusable; collect infos and failures."""
@@ -174,9 +216,22 @@ class _Run:
             if _reusable(self.session, self.previous, self.params, self.inputs, frame, references):
                 self.infos[frame["id"]] = self.previous.get("frames", {}).get(frame["id"], {})
                 self._keep_outputs(frame["id"])
+            elif (adopted := self._adopt(frame, references)) is not None:
+                info, outputs = adopted
+                self.hashes.update(outputs)
+                self.infos[frame["id"]] = {**info, "file": frame["file"]}
+                self.adopted.append(frame["id"])
+                self.receipts.append(frame["id"])
+                self.unrecorded += 1
             else:
-                self.tasks.append(_task(self.session, frame, dict(self.params),
-                                        self.sizes[frame["id"]], reference))
+                self.tasks.append(_task(self.session, frame, dict(self.params), self.sizes[frame["id"]], reference,
+                                        _receipt_base(self.session, self.params, self.inputs, frame, references)))
+
+    def _adopt(self, frame, references):
+        """A frame's receipt (:func:`_adoptable`), unless decoding is forced."""
+        if self.force:
+            return None
+        return _adoptable(self.session, self.params, self.inputs, frame, references)
 
     def queue_merge(self, group, digest, members):
         """Plan the merge of a bracket ``group`` unless the previous run's still holds
@@ -206,7 +261,7 @@ class _Run:
         if not tasks:
             return
         results = run_tasks(tasks, jobs=self.jobs, show=self.show, pool=self._pool(len(tasks)),
-                            on_done=self.finished)
+                            on_done=self.finished, on_tick=self.record_due)
         if any(error and error.startswith("decoder crashed") for _, error, _ in results.values()):
             self.close()  # a crashed worker breaks its pool: the next batch gets a new one
 
@@ -223,8 +278,15 @@ class _Run:
                 self.merged[frame_id] = {**info, "inputs_sha256": self.merge_inputs[frame_id]}
             else:
                 self.infos[frame_id] = {**info, "file": self.files[frame_id]}
+                self.receipts.append(frame_id)
         self.unrecorded += 1
-        if time.perf_counter() - self.saved_at >= RECORD_SHARE * self.save_cost:
+        self.record_due()
+
+    def record_due(self):
+        """Record the frames finished since the last save when :data:`RECORD_SHARE` saves'
+        worth of time, or :data:`RECORD_INTERVAL`, has passed since it."""
+        if self.unrecorded and time.perf_counter() - self.saved_at >= min(RECORD_SHARE * self.save_cost,
+                                                                         RECORD_INTERVAL):
             self.record_progress()
 
     def record_progress(self):
@@ -235,6 +297,13 @@ class _Run:
         _record(self.session, self.frames, self, time.perf_counter() - self.started, status="incomplete")
         self.saved_at = time.perf_counter()
         self.save_cost, self.unrecorded = self.saved_at - start, 0
+        self.drop_receipts()
+
+    def drop_receipts(self):
+        """Remove the receipts of the frames the saved record lists (they are its now)."""
+        for frame_id in self.receipts:
+            receipt_path(self.session, frame_id).unlink(missing_ok=True)
+        self.receipts = []
 
     def _pool(self, count):
         """The run's process pool, started on the first batch that needs one and reused for
@@ -251,8 +320,8 @@ class _Run:
             self.pool = None
 
     def needs_work(self, frames, references):
-        return any(not _reusable(self.session, self.previous, self.params, self.inputs, f,
-                                 references) for f in frames)
+        return any(not _reusable(self.session, self.previous, self.params, self.inputs, f, references)
+                   and self._adopt(f, references) is None for f in frames)
 
 
 def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma="auto",
@@ -309,7 +378,7 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     sizes = _sizes(session, frames, binning, failed)
     run = _Run(session, params, inputs, sizes, failed, None if force else session.stage("decode"),
                jobs, progress)
-    run.started = start
+    run.started, run.force = start, force
     scratch = session.path(DECODE_SCRATCH)
     try:
         with contextlib.closing(run):
@@ -321,7 +390,9 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
         raise
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    return _record(session, frames, run, time.perf_counter() - start)
+    record = _record(session, frames, run, time.perf_counter() - start)
+    run.drop_receipts()
+    return record
 
 
 def _decode_all(session, frames, run, scratch):
@@ -426,6 +497,8 @@ def _record(session, frames, run, seconds, status=None):
     subtracted = run.subtracted
     status = status or ("ok" if not run.failed else ("partial" if done else "failed"))
     extra = {"merged": merged} if merged else {}
+    if run.adopted:   # decoded by a run killed before it recorded them (their receipts)
+        extra["adopted"] = list(run.adopted)
     warnings = [w for info in merged.values() for w in info.get("warnings") or []]
     if warnings:  # where psrig run and the report look for them
         extra["warnings"] = warnings

@@ -12,6 +12,7 @@ import re
 from pathlib import Path
 
 from ..decode import frame_format, readable_formats
+from ..decode.formats import FrameTooLarge
 from ..errors import InputError, PsrigError
 from ..imageio import read_mask
 from ..lightsio import flag_behind, lp_name, read_intensities, read_lights
@@ -82,6 +83,8 @@ def _check_decodable(files):
     for path in files:
         try:
             frame_format(path)
+        except FrameTooLarge:
+            raise   # it is decodable, but not here: said apart
         except PsrigError:
             bad.append(path)
     if bad:
