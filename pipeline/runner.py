@@ -233,7 +233,7 @@ def run_session(root, *, options=None, force=False, start=None, stop=None, jobs=
     outcomes = []
     with Session.open(root, writer="run", wait=wait, on_wait=echo) as session:
         if session.swept and echo:
-            echo(session.describe_swept())
+            echo(session.describe_swept(named=False))   # echo's lines name the session
         for name in STAGES[:STAGES.index(stop or STAGES[-1]) + 1]:
             outcome = run_stage(session, name, options or {}, name in forced, jobs)
             outcomes.append(outcome)

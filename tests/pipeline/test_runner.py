@@ -131,3 +131,14 @@ def test_no_sphere_frames_and_no_lights_is_one_message_for_run_and_calibrate(tmp
     expected = f"{session.root}: no sphere frames and no calibration/lights.yaml; capture a chrome sphere"
     assert expected in str(run_error.value) and "--from CAL" in str(run_error.value)
     assert str(calibrate_error.value).startswith(expected)
+
+
+def test_the_sweep_note_names_the_session_once(tmp_path, stubbed, capsys):
+    root = make_session(tmp_path).root
+    assert main(["run", str(root), "--to", "decode"]) == 0
+    (root / "linear" / ".object_001.a1b2c3.tmp.exr").write_bytes(b"x")
+    capsys.readouterr()
+    assert main(["run", str(root), "--to", "decode"]) == 0
+    out = capsys.readouterr().out
+    assert f"{root}: removed 1 temporary file (0.0 MB) left by an interrupted run (linear/ 1)\n" in out, out
+    assert f"{root}: {root}" not in out
