@@ -142,3 +142,16 @@ def test_the_sweep_note_names_the_session_once(tmp_path, stubbed, capsys):
     out = capsys.readouterr().out
     assert f"{root}: removed 1 temporary file (0.0 MB) left by an interrupted run (linear/ 1)\n" in out, out
     assert f"{root}: {root}" not in out
+
+
+def test_an_empty_mask_in_a_session_is_named(tmp_path, capsys):
+    from pipeline.imageio import read_mask, write_mask
+
+    root = make_session(tmp_path).root
+    session = Session.open(root)
+    mask = session.path(session.manifest["lights"]["object_mask"])
+    write_mask(mask, read_mask(mask) & False)   # all black, edited after the import
+    assert main(["run", str(root), "--to", "normals"]) == 1
+    err = capsys.readouterr().err
+    assert f"{mask}: the object mask is empty (no white pixel)" in err, err
+    assert "Traceback" not in err
