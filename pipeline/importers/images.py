@@ -12,7 +12,7 @@ import re
 from pathlib import Path
 
 from ..decode import frame_format, readable_formats
-from ..decode.formats import FrameTooLarge
+from ..decode.formats import FrameTooLarge, png_problem
 from ..errors import InputError, PsrigError
 from ..imageio import read_mask
 from ..lightsio import flag_behind, lp_name, read_intensities, read_lights
@@ -82,11 +82,14 @@ def _check_decodable(files):
     bad = []
     for path in files:
         try:
-            frame_format(path)
+            found = frame_format(path)
         except FrameTooLarge:
             raise   # it is decodable, but not here: said apart
         except PsrigError:
             bad.append(path)
+            continue
+        if found.name == "png" and (problem := png_problem(path)) is not None:
+            raise InputError(f"{path}: the PNG file is {problem}; copy it again from its source")
     if bad:
         names = ", ".join(str(p) for p in bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
         raise InputError(f"{len(bad)} file(s) cannot be decoded: {names}; {readable_formats()}")
