@@ -33,3 +33,12 @@ def test_a_damaged_png_is_refused_at_import(tmp_path, frames, capfd, damage, sai
     assert err.count("\n") == 1 and "Traceback" not in err, err
     assert f"{path}: the PNG file is {said}" in err, err
     assert not (tmp_path / "s").exists()
+
+
+def test_grey_and_colour_frames_mixed_are_refused(tmp_path, frames, capsys):
+    grey = frames / "img5.png"
+    write_image(grey, np.full((40, 40), 0.5, np.float32), bits=16)
+    assert main(["import", "images", str(tmp_path / "s"), "--object", str(frames / "img*.png")]) == 1
+    err = capsys.readouterr().err
+    assert f"{grey} is a grey image but {frames / 'img1.png'} is in colour" in err, err
+    assert not (tmp_path / "s").exists()
