@@ -10,6 +10,7 @@ received as an archive may hold links anywhere.
 """
 
 import contextlib
+import errno
 import os
 import re
 import shutil
@@ -107,6 +108,18 @@ def _name(exc, path):
     (a full disk fails a write(), which has no file name), so that messages say which file."""
     if isinstance(exc, OSError) and (exc.filename is None or is_temp_name(Path(str(exc.filename)).name)):
         exc.filename = str(path)
+    if isinstance(exc, OSError) and exc.errno is None and _disk_full(path.parent):
+        # a short write without an errno (numpy: "18432 requested and 18400 written")
+        exc.errno, exc.strerror = errno.ENOSPC, f"No space left on device: {exc.args[0] if exc.args else exc}"
+
+
+def _disk_full(folder):
+    """True when the file system of ``folder`` has (almost) no space left for its user."""
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < (1 << 20)
 
 
 def _temp_beside(path):

@@ -23,6 +23,8 @@ Dask is an optional dependency (``psrig[cluster]``): it is imported only inside 
 
 import contextlib
 import logging
+import signal
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -63,10 +65,28 @@ def open_client(scheduler=None, jobs=2):
         with client:
             yield client
         return
-    with LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
-            Client(cluster) as client:
+    with _workers_ignore_ctrl_c():
+        # its workers' own logs are silenced: psrig reports every task's failure itself, and a
+        # batch stopped by Ctrl-C made each worker log its lost scheduler with a traceback
+        cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.CRITICAL)
+    with cluster, Client(cluster) as client:
         yield client
+
+
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c():
+    """Start worker processes ignoring SIGINT (an ignored signal stays ignored in a child, and
+    Python then installs no handler of its own): a Ctrl-C reaches the terminal's whole process
+    group, and each Dask worker printed its traceback; the client alone stops the batch."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _stage_names(stop):

@@ -335,8 +335,12 @@ def worker_context(preload=()):
     # (but a site-packages folder there would come before the standard library)
     installed = home in {str(Path(p).resolve()) for p in site.getsitepackages() + [site.getusersitepackages()]}
     with _GUARD:
-        saved = {key: os.environ.get(key) for key in ("PYTHONSAFEPATH", "PYTHONPATH")}
+        saved = {key: os.environ.get(key) for key in ("PYTHONSAFEPATH", "PYTHONPATH", "PYTHONWARNINGS")}
         os.environ["PYTHONSAFEPATH"] = "1"
+        # the resource tracker (started here too) removes the pool's semaphores when psrig is
+        # killed, and warned of them as "leaked" on the terminal: it is its job, not a fault
+        os.environ["PYTHONWARNINGS"] = ",".join(
+            [w for w in [saved["PYTHONWARNINGS"]] if w] + ["ignore:resource_tracker:UserWarning"])
         if not installed:
             os.environ["PYTHONPATH"] = os.pathsep.join([home] + ([saved["PYTHONPATH"]] if saved["PYTHONPATH"] else []))
         try:

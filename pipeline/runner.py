@@ -13,7 +13,9 @@ is the serial executor; :mod:`pipeline.cluster` runs the same stages on Dask.
 
 import concurrent.futures
 import contextlib
+import os
 import signal
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -152,7 +154,7 @@ def run_session(root, *, options=None, force=False, start=None, stop=None, jobs=
     outcomes = []
     with Session.open(root, writer="run", wait=wait, on_wait=echo) as session:
         if session.swept and echo:
-            echo(session.describe_swept())
+            echo(session.describe_swept(named=False))   # echo's lines name the session
         for name in STAGES[:STAGES.index(stop or STAGES[-1]) + 1]:
             outcome = run_stage(session, name, options or {}, name in forced, jobs)
             outcomes.append(outcome)
@@ -165,6 +167,9 @@ def _run_one(root, options, force, start, stop, jobs, token):
     """Process-pool worker: one session, under the parent's lock (``token``); errors returned as
     text (they cross processes)."""
     outcome = SessionOutcome(str(root))
+    # a Ctrl-C reaches every process of the terminal's group: a worker working on a session
+    # stops it (its stages record what they finished); an idle one ignores it (_init_worker)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         act_under(root, token)
         outcome.stages = run_session(root, options=options, force=force, start=start, stop=stop,
@@ -173,13 +178,32 @@ def _run_one(root, options, force, start, stop, jobs, token):
         outcome.error = str(exc)
     except OSError as exc:
         outcome.error = f"{root}: {describe_os_error(exc)}"
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     return outcome
+
+
+def _init_worker(reader):
+    """Initializer of a ``run --jobs`` worker: it dies with its parent (:func:`watch_lifeline`),
+    and a Ctrl-C finding it idle is the parent's to handle (no traceback from the worker)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    watch_lifeline(reader)
+
+
+def _interrupt(processes):
+    """Pass a Ctrl-C the parent got on to its workers (it may have been sent to it alone)."""
+    for process in processes:
+        with contextlib.suppress(OSError, AttributeError):
+            os.kill(process.pid, signal.SIGINT)
 
 
 def _isolated_worker(conn, reader, root, work, token):
     """Process of :func:`_run_isolated`: one session, its outcome sent on ``conn``."""
     watch_lifeline(reader)
-    conn.send(_run_one(root, *work, token))
+    try:
+        conn.send(_run_one(root, *work, token))
+    except KeyboardInterrupt:
+        sys.exit(130)   # the parent says "interrupted"; no traceback from here
     conn.close()
 
 
@@ -215,10 +239,13 @@ def _run_isolated(context, tokens, work, jobs):
                 process.join()
                 conn.close()
                 del running[sentinel]
-    finally:
+    finally:   # interrupted: the running sessions stop, recording what they finished
+        _interrupt([process for _, process, _ in running.values()])
         for _, process, conn in running.values():
-            process.kill()
-            process.join()
+            process.join(timeout=30)
+            if process.is_alive():
+                process.kill()
+                process.join()
             conn.close()
     return outcomes
 
@@ -299,14 +326,20 @@ def run_sessions(roots, *, options=None, force=False, start=None, stop=None, job
         outcomes.update({root: session for root, session in sessions.items() if isinstance(session, SessionOutcome)})
         # one decode worker per session: the sessions already share the cores
         work = (options, force, start, stop, 1)
-        with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=watch_lifeline,
+        with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=_init_worker,
                                                     initargs=(lifeline(context),)) as pool:
             futures = {root: pool.submit(_run_one, root, *work, token) for root, token in tokens.items()}
-            for root, future in futures.items():
-                try:
-                    outcomes[root] = future.result()
-                except concurrent.futures.process.BrokenProcessPool:
-                    pass  # a worker died (OOM killer, kill -9): which session's, the pool cannot tell
+            try:
+                for root, future in futures.items():
+                    try:
+                        outcomes[root] = future.result()
+                    except concurrent.futures.process.BrokenProcessPool:
+                        pass  # a worker died (OOM killer, kill -9): which session's, the pool cannot tell
+            except KeyboardInterrupt:
+                # start no other session; the running ones stop, recording what they finished
+                pool.shutdown(wait=False, cancel_futures=True)
+                _interrupt(list((getattr(pool, "_processes", None) or {}).values()))
+                raise
         broken = [root for root in tokens if root not in outcomes]
         if broken:
             # each unfinished session again in a process of its own, so that a death is its own

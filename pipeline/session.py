@@ -254,14 +254,15 @@ class Session:
                 swept[name or "."] = (files, size)
         return swept
 
-    def describe_swept(self):
-        """One line on what :attr:`swept` removed, or ''."""
+    def describe_swept(self, named=True):
+        """One line on what :attr:`swept` removed, or ''; ``named`` False leaves the session's
+        path out (for lines a caller prefixes with it)."""
         if not self.swept:
             return ""
         files = sum(f for f, _ in self.swept.values())
         size = sum(b for _, b in self.swept.values())
         where = ", ".join(f"{name}/ {f}" for name, (f, _) in self.swept.items())
-        return (f"{self.root}: removed {files} temporary file{'s' * (files != 1)} "
+        return (f"{self.root}: " * named + f"removed {files} temporary file{'s' * (files != 1)} "
                 f"({size / 1e6:.1f} MB) left by an interrupted run ({where})")
 
     def save(self):

@@ -6,9 +6,12 @@ code or None). :data:`COMMANDS` lists them in the order ``psrig --help`` shows t
 """
 
 import argparse
+import contextlib
 import importlib
 import os
+import signal
 import sys
+import threading
 
 from .. import __version__
 from ..errors import PsrigError, describe_os_error
@@ -50,8 +53,12 @@ def main(argv=None):
         parser.print_help()
         return 2
     try:
-        code = args.func(args)
+        with _terminate_as_interrupt():
+            code = args.func(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+    except Terminated:
+        print(f"psrig {args.command}: terminated (SIGTERM)", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except PsrigError as exc:
         # notes carry what happened while the error unwound (lights that stayed on)
         notes = "".join(f"; {note}" for note in getattr(exc, "__notes__", ()))
@@ -88,6 +95,29 @@ def _subparser(parser, name):
         if isinstance(action, argparse._SubParsersAction):
             return action.choices.get(name)
     return None
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM arrived: the command stops as on Ctrl-C (what it finished is recorded, its
+    worker processes and their semaphores are released)."""
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt():
+    """Within the block, SIGTERM raises :class:`Terminated` in the main thread (a command
+    installing its own handler, capture, replaces it for its time)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def terminate(signum, frame):
+        raise Terminated("terminated (SIGTERM)")
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _closed_pipe():

@@ -17,7 +17,7 @@ import rawpy
 from ..errors import ImageFileError
 
 __all__ = ["FrameFormat", "frame_format", "readable_formats", "RAW_EXAMPLES", "FrameTooLarge",
-           "MAX_IMAGE_PIXELS", "IMAGE_DECODE_BYTES_PER_PIXEL", "check_image_size"]
+           "MAX_IMAGE_PIXELS", "IMAGE_DECODE_BYTES_PER_PIXEL", "check_image_size", "png_problem"]
 
 #: Most pixels an image frame may have. The largest camera frames (pixel-shift composites) are
 #: about 400 MP; a PNG of a flat colour claiming 30000 x 30000 is under 1 MB on disk, so the
@@ -89,6 +89,43 @@ def frame_format(path):
         raise ImageFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
     # a decode worker asks twice per frame (its fast path, then the decoder): answered once
     return _frame_format(str(path), stat.st_mtime_ns, stat.st_size)
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_problem(path):
+    """Why the PNG file ``path`` is not whole, or None: each chunk must be complete and match
+    its CRC, and the file must reach its IEND chunk. A header alone (what OpenImageIO reads to
+    open a file) says nothing of a file cut short in a copy or damaged on disk.
+
+    Returns
+    -------
+    str or None
+        'truncated (...)' or 'corrupt (...)' with the chunk and byte offset.
+    """
+    import struct
+    import zlib
+
+    with open(path, "rb") as fh:
+        data = fh.read()
+    if not data.startswith(_PNG_SIGNATURE):
+        return "corrupt (no PNG signature)"
+    at = len(_PNG_SIGNATURE)
+    while True:
+        if at + 8 > len(data):
+            return f"truncated (it ends at byte {len(data)}, before its IEND chunk)"
+        length, kind = struct.unpack_from(">I4s", data, at)
+        end = at + 8 + length + 4
+        name = kind.decode("latin-1")
+        if end > len(data):
+            return f"truncated (it ends at byte {len(data)}, inside its {name!r} chunk at byte {at})"
+        crc = struct.unpack_from(">I", data, end - 4)[0]
+        if zlib.crc32(data[at + 4:end - 4]) != crc:
+            return f"corrupt (its {name!r} chunk at byte {at} fails its CRC)"
+        if kind == b"IEND":
+            return None
+        at = end
 
 
 def check_image_size(path, height, width):

@@ -38,7 +38,9 @@ def read_native(path):
         # stored type (the default would convert to float); 1-, 2- and 4-bit files come as uint8
         pixels = inp.read_image(oiio.UNKNOWN)
         if pixels is None:
-            raise ImageFileError(f"{path}: truncated or corrupt image ({inp.geterror()})")
+            # one line: OpenImageIO passes on libpng's lines as they came
+            said = " ".join(inp.geterror().split())
+            raise ImageFileError(f"{path}: truncated or corrupt image ({said})")
     finally:
         inp.close()
     pixels = np.asarray(pixels)

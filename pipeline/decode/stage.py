@@ -384,9 +384,11 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
         with contextlib.closing(run):
             _decode_all(session, frames, run, scratch)
     except BaseException:
-        run.record_progress()  # interrupted: the next run starts from what is on disk
-        # the pool is shut down: the temporaries its workers were writing are nobody's now
-        sweep_tree(session.path("linear"), recursive=False)
+        try:
+            run.record_progress()  # interrupted: the next run starts from what is on disk
+        finally:   # also when that save fails (a full disk, a manifest refused)
+            # the pool is shut down: the temporaries its workers were writing are nobody's now
+            sweep_tree(session.path("linear"), recursive=False)
         raise
     finally:
         shutil.rmtree(scratch, ignore_errors=True)

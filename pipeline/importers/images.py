@@ -12,7 +12,7 @@ import re
 from pathlib import Path
 
 from ..decode import frame_format, readable_formats
-from ..decode.formats import FrameTooLarge
+from ..decode.formats import FrameTooLarge, png_problem
 from ..errors import InputError, PsrigError
 from ..imageio import read_mask
 from ..lightsio import flag_behind, lp_name, read_intensities, read_lights
@@ -82,14 +82,34 @@ def _check_decodable(files):
     bad = []
     for path in files:
         try:
-            frame_format(path)
+            found = frame_format(path)
         except FrameTooLarge:
             raise   # it is decodable, but not here: said apart
         except PsrigError:
             bad.append(path)
+            continue
+        if found.name == "png" and (problem := png_problem(path)) is not None:
+            raise InputError(f"{path}: the PNG file is {problem}; copy it again from its source")
     if bad:
         names = ", ".join(str(p) for p in bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
         raise InputError(f"{len(bad)} file(s) cannot be decoded: {names}; {readable_formats()}")
+
+
+def _colour(found):
+    """'grey' or 'colour' of a frame's FrameFormat (camera raws are colour)."""
+    return "colour" if found.kind == "raw" or (found.channels or 3) >= 3 else "grey"
+
+
+def _mixed_colour(files):
+    """What is wrong when grey and colour frames are mixed (decode would make the grey ones
+    white colour frames, and the albedo's colour would differ by frame), or ''."""
+    kinds = {}
+    for path in files:
+        kinds.setdefault(_colour(frame_format(path)), path)
+    if len(kinds) < 2:
+        return ""
+    return (f"{kinds['grey']} is a grey image but {kinds['colour']} is in colour; the frames of a group "
+            "must all be grey or all colour")
 
 
 def _unexpected(files, others):
@@ -177,6 +197,12 @@ def import_images(dest, object_glob, *, sphere_glob=None, mask=None, lights=None
         outlines, skipped = expand_glob(outline, "--outline", keep_all=True)
         groups["outline"] = {"pattern": outline, "files": outlines, "skipped": skipped}
     _check_decodable(objects + spheres + outlines)
+    for files in (objects, spheres):
+        mixed = _mixed_colour(files)
+        if mixed and not keep_all:
+            raise InputError(f"{mixed} (convert them)")
+        if mixed:   # --keep-all: the files were asked for as they are; said, and recorded
+            notes.append(f"warning: {mixed}")
     size = check_sizes(objects)
     if spheres:
         check_sizes(spheres, size, reference=objects[0], hint=SPHERE_CROP_HINT)

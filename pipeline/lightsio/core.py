@@ -58,6 +58,9 @@ class LightSet:
             self.intensities = self.intensities[:, None]
         if len(self.intensities) != len(self.directions):
             raise InputError(f"intensities: {len(self.intensities)} rows for {len(self.directions)} lights")
+        if self.positions is not None:
+            self.positions = np.asarray(self.positions, float)
+            _check_finite(self.positions, "positions", "position")
         _check_finite(self.intensities, "intensities", "intensity")
 
     def __len__(self):
@@ -81,10 +84,16 @@ def check_directions(directions, where="lights"):
     bad = ~np.isfinite(d).all(axis=1)
     if bad.any():
         raise InputError(f"{where}: light {int(np.argmax(bad))} has a non-finite direction")
-    norm = np.linalg.norm(d, axis=1)
+    # each row scaled by its largest component first: the norm of (1e308, 1e308, 0) overflows
+    scale = np.abs(d).max(axis=1)
+    scaled = d / np.where(scale > 0, scale, 1.0)[:, None]
+    unit_norm = np.linalg.norm(scaled, axis=1)
+    with np.errstate(over="ignore"):
+        norm = scale * unit_norm
     if (norm < 1e-9).any():
-        raise InputError(f"{where}: light {int(np.argmax(norm < 1e-9))} has a zero direction vector")
-    return d / norm[:, None]
+        k = int(np.argmax(norm < 1e-9))
+        raise InputError(f"{where}: light {k} has a zero direction vector {d[k].tolist()}")
+    return scaled / unit_norm[:, None]
 
 
 def check_intensities(values, count, where="intensities"):

@@ -88,7 +88,10 @@ def read_lights(path, count=None):
         return read_lights_yaml(path, foreign=f"it reads {LIGHT_FORMATS}")
     if kind == "lp":
         names, directions = read_lp(path)
-        return LightSet(directions, filenames=names, source=source)
+        try:
+            return LightSet(directions, filenames=names, source=source)
+        except InputError as exc:
+            raise InputError(f"{path}: {exc}") from None
     if kind == "text":
         directions, intensities = read_lights_text(path, count)
     else:
@@ -96,7 +99,10 @@ def read_lights(path, count=None):
         directions, intensities = split_columns(read_array(path, kind, name), where, count)
     if intensities is not None:
         intensities = check_intensities(intensities, len(directions), f"{path}: intensity columns")
-    return LightSet(directions, intensities, source=source)
+    try:
+        return LightSet(directions, intensities, source=source)
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
 
 
 def read_intensities(path, count):

@@ -231,6 +231,9 @@ def object_mask(session, run, images):
         if mask.shape != images.shape[1:]:
             raise StageError(f"{session.path(run.mask_rel)}: mask size {mask.shape} differs from the frames' "
                              f"{images.shape[1:]}")
+        if not mask.any():   # edited after import (import refuses an empty mask)
+            raise StageError(f"{session.path(run.mask_rel)}: the object mask is empty (no white pixel); "
+                             "replace it by the object's mask")
         return mask
     peak = images.max(axis=0)
     return peak > 0.05 * np.percentile(peak, 99.5)

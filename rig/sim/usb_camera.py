@@ -692,7 +692,8 @@ class SimulatedUsbBackend(usb.backend.IBackend):
     def _run(self, cmd, out):
         """Execute a command (with the host's data phase ``out``) and queue its IN transfers."""
         if self.faults.take("stale_response", cmd.code):
-            self._in.append(_InTransfer([ptp.pack_response(RC.OK, cmd.transaction_id - 1)],
+            # the transaction before the first (OpenSession, id 0) wraps round to 0xFFFFFFFF
+            self._in.append(_InTransfer([ptp.pack_response(RC.OK, (cmd.transaction_id - 1) & 0xFFFFFFFF)],
                                         cmd.code))
         payload, code, params = self.camera.execute(cmd.code, cmd.transaction_id, cmd.params,
                                                     out)

@@ -82,3 +82,22 @@ def test_capture_on_a_full_disk(tmp_path, monkeypatch, capsys):
     assert [f["id"] for f in session.frames()][-1] == "object_002"
     monkeypatch.undo()
     assert main(["capture", str(root), "--rig", "sim8", "--config", str(rigs), "--resume"]) == 0
+
+
+def test_a_short_write_on_a_full_disk_is_called_disk_full(tmp_path, monkeypatch, capsys):
+    """numpy reports a full disk as a short write without an errno ("18432 requested and 18400
+    written"): with the file system full, it is said to be one."""
+    root = make_session(tmp_path).root
+    assert main(["run", str(root), "--to", "normals", "-q"]) == 0
+    capsys.readouterr()
+    real = atomic._fsync_file
+
+    def fsync(tmp):
+        if f"{os.sep}depth{os.sep}" in str(tmp):
+            raise OSError("18432 requested and 18400 written")
+        return real(tmp)
+    monkeypatch.setattr(atomic, "_fsync_file", fsync)
+    monkeypatch.setattr(atomic, "_disk_full", lambda folder: True)
+    assert main(["integrate", str(root)]) == 1
+    line = one_line(capsys)
+    assert ": disk full (No space left on device: 18432 requested and 18400 written)" in line, line

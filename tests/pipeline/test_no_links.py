@@ -7,7 +7,7 @@ import os
 
 import pytest
 
-from pipeline.atomic import atomic_write_text
+from pipeline.atomic import atomic_write_text, is_temp_name
 from pipeline.cli import main
 from pipeline.errors import SessionError
 from tests.pipeline.tiny_session import make_session
@@ -69,6 +69,8 @@ def test_a_symlinked_manifest_is_refused_on_save(session_and_outside, capsys):
     assert f"{manifest}: is a symbolic link to {copy}" in line, line
     assert copy.read_bytes() == before
     assert manifest.is_symlink()
+    # the frames decoded before the save was refused leave no temporary file behind
+    assert not [p.name for p in (root / "linear").iterdir() if is_temp_name(p.name)]
 
 
 def test_an_output_linked_to_a_raw_frame_of_the_session_is_refused(session_and_outside, capsys):

@@ -131,3 +131,27 @@ def test_no_sphere_frames_and_no_lights_is_one_message_for_run_and_calibrate(tmp
     expected = f"{session.root}: no sphere frames and no calibration/lights.yaml; capture a chrome sphere"
     assert expected in str(run_error.value) and "--from CAL" in str(run_error.value)
     assert str(calibrate_error.value).startswith(expected)
+
+
+def test_the_sweep_note_names_the_session_once(tmp_path, stubbed, capsys):
+    root = make_session(tmp_path).root
+    assert main(["run", str(root), "--to", "decode"]) == 0
+    (root / "linear" / ".object_001.a1b2c3.tmp.exr").write_bytes(b"x")
+    capsys.readouterr()
+    assert main(["run", str(root), "--to", "decode"]) == 0
+    out = capsys.readouterr().out
+    assert f"{root}: removed 1 temporary file (0.0 MB) left by an interrupted run (linear/ 1)\n" in out, out
+    assert f"{root}: {root}" not in out
+
+
+def test_an_empty_mask_in_a_session_is_named(tmp_path, capsys):
+    from pipeline.imageio import read_mask, write_mask
+
+    root = make_session(tmp_path).root
+    session = Session.open(root)
+    mask = session.path(session.manifest["lights"]["object_mask"])
+    write_mask(mask, read_mask(mask) & False)   # all black, edited after the import
+    assert main(["run", str(root), "--to", "normals"]) == 1
+    err = capsys.readouterr().err
+    assert f"{mask}: the object mask is empty (no white pixel)" in err, err
+    assert "Traceback" not in err

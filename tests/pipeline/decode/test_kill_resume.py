@@ -92,3 +92,22 @@ def test_a_slow_save_does_not_stretch_the_recording_window(tmp_path, monkeypatch
     # 13 frames 0.2 s apart after a 2 s save: recorded again after 1 s (5 frames), and so on
     assert len(incomplete) >= 3, saves
     assert all(b - a <= 6 for a, b in zip(incomplete, incomplete[1:])), saves
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+def test_a_killed_decode_prints_no_leaked_semaphore_warning(tmp_path, sig):
+    """SIGTERM stops decode as Ctrl-C does (one line, status 143, what is on disk recorded);
+    after SIGKILL the resource tracker removes the pool's semaphores without a warning."""
+    from tests.pipeline.decode.test_interrupt import decoded, wait_for
+
+    root = raw_session(tmp_path / "s", frames=24, shape=(512, 512))
+    proc = psrig("decode", root, "--jobs", "2", start_new_session=True)
+    wait_for(lambda: len(decoded(root)) >= 3, proc, what="3 decoded frames")
+    os.kill(proc.pid, sig)
+    out, err = proc.communicate(timeout=120)
+    time.sleep(0.5)   # the resource tracker notices its end
+    assert "leaked" not in err and "Traceback" not in err, err
+    if sig == signal.SIGTERM:
+        assert proc.returncode == 143 and err.strip() == "psrig decode: terminated (SIGTERM)", err
+        record = Session.open(root).stage("decode")
+        assert record["status"] == "incomplete" and set(record["frames"]) == complete(root)

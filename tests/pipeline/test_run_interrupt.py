@@ -1,0 +1,38 @@
+"""Ctrl-C of ``psrig run --jobs N`` (a process pool) and ``--scheduler local`` (Dask) prints
+one line, ``psrig run: interrupted``: no worker prints a traceback (the terminal sends SIGINT
+to the whole process group, workers included)."""
+
+import os
+import signal
+
+import pytest
+
+from pipeline.session import Session
+from tests.pipeline.decode.test_interrupt import decoded, psrig, raw_session, wait_for
+
+
+def interrupted_run(tmp_path, *extra):
+    """Interrupt a batch of a small session and a big one once the small one is done: one
+    worker is then idle (waiting for work) and the other busy."""
+    small = raw_session(tmp_path / "small", frames=2, shape=(64, 64))
+    big = raw_session(tmp_path / "big", frames=40, shape=(512, 512))
+    proc = psrig("run", small, big, "--to", "decode", "-q", *extra, start_new_session=True)
+
+    def small_done_big_started():
+        record = (Session.open(small).stage("decode") or {}) if decoded(big) else {}
+        return record.get("status") == "ok"
+    wait_for(small_done_big_started, proc, timeout=180, what="the small session decoded")
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    return proc.returncode, err
+
+
+def test_ctrl_c_of_a_process_pool_batch_is_one_line(tmp_path):
+    code, err = interrupted_run(tmp_path, "--jobs", "2")
+    assert code == 130 and err.strip() == "psrig run: interrupted", err
+
+
+def test_ctrl_c_of_a_dask_batch_is_one_line(tmp_path):
+    pytest.importorskip("distributed")
+    code, err = interrupted_run(tmp_path, "--jobs", "2", "--scheduler", "local")
+    assert code == 130 and err.strip() == "psrig run: interrupted", err
