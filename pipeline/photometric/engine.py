@@ -28,7 +28,7 @@ from .methods import STATUS
 from .near_lights import PointLights, observations_at
 
 __all__ = ["Context", "ChunkRun", "OnePhase", "KeptSelection", "phases_of", "gatherer", "prepare_context",
-           "solve_chunk", "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS",
+           "solve_chunk", "normal_leverage", "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS",
            "CHUNK_KEYS", "NO_NORMAL"]
 
 #: statuses without a normal (zero in the maps)
@@ -36,7 +36,7 @@ NO_NORMAL = (STATUS["too_few"], STATUS["shadowed"], STATUS["ill_posed"])
 #: what a method's context reports in the result: the shared shape and its check
 SHARED_KEYS = ("shape_paper", "shape_check")
 #: what a solved chunk holds, per pixel (a method without "lit" counts its used observations)
-CHUNK_KEYS = ("b", "status", "used", "lit", "rss", "params")
+CHUNK_KEYS = ("b", "status", "used", "lit", "rss", "params", "leverage")
 #: Pixels per chunk (memory per chunk is about CHUNK_SIZE x K x 200 bytes)
 CHUNK_SIZE = 2048
 #: Bytes of observations (float64) a worker holds selected ahead while the shared context is
@@ -186,10 +186,54 @@ def solve_chunk(phases, picked, context, options, anchor):
     that show a peak) are measured here, on the chunk's observations already in memory.
     """
     chunk = phases.fit(picked, context=context, **options)
+    chunk["leverage"] = normal_leverage(chunk["b"], picked.get("weights", picked.get("valid")), picked["lights"])
     if anchor:
         chunk["mismatch"], chunk["peaks"] = highlight_mismatch(picked["obs"], np.nan_to_num(chunk["b"]),
                                                                picked["lights"], valid=picked["valid"], rows=True)
     return chunk
+
+
+def normal_leverage(b, weights, lights):
+    """How much noise in the observations turns each pixel's normal: the linearised angular
+    standard deviation of a Lambertian fit on the pixel's used observations, per unit of noise
+    relative to the albedo.
+
+    For b = rho n fitted by least squares on the lights l_k (rows of M = sum_k l_k l_k^T), the
+    covariance of b is sigma^2 M^-1; its part across the normal, over rho^2, is the normal's
+    angular variance. So the angle's standard deviation in radians is the residual relative to
+    the albedo times ``sqrt(trace(M^-1) - n^T M^-1 n)``. It grows as the used lights close in
+    on a plane and as they get fewer.
+
+    Parameters
+    ----------
+    b : ndarray (N, 3)
+        Each pixel's fitted albedo-scaled normal (NaN or zero where there is none).
+    weights : ndarray (N, K) or None
+        The observations each pixel used (> 0); None: every one.
+    lights : ndarray (K, 3) or (N, K, 3)
+        Unit light directions.
+
+    Returns
+    -------
+    ndarray (N,) float32
+        Radians per unit relative noise; NaN where there is no normal or the used lights
+        determine none.
+    """
+    n_px = len(b)
+    used = np.ones((n_px, lights.shape[-2])) if weights is None else (np.asarray(weights) > 0).astype(np.float64)
+    if lights.ndim == 2:
+        outer = (lights[:, :, None] * lights[:, None, :]).reshape(len(lights), 9)
+        m = (used @ outer).reshape(n_px, 3, 3)
+    else:
+        m = np.einsum("nk,nki,nkj->nij", used, lights, lights)
+    det = np.linalg.det(m)
+    good = det > 1e-12 * np.maximum(np.trace(m, axis1=1, axis2=2), 1e-12) ** 3
+    inv = np.linalg.inv(np.where(good[:, None, None], m, np.eye(3)))
+    norm = np.linalg.norm(np.nan_to_num(b), axis=1)
+    good &= norm > 0
+    n = np.nan_to_num(b) / np.where(good, norm, 1.0)[:, None]
+    across = np.trace(inv, axis1=1, axis2=2) - np.einsum("ni,nij,nj->n", n, inv, n)
+    return np.where(good, np.sqrt(np.maximum(across, 0.0)), np.nan).astype(np.float32)
 
 
 def allocate_maps(shape, n_params):
@@ -198,7 +242,7 @@ def allocate_maps(shape, n_params):
     return {"normals": np.zeros((h, w, 3), np.float32), "status": np.zeros((h, w), np.uint8),
             "albedo": np.zeros((h, w), np.float32), "params": np.zeros((h, w, n_params), np.float32),
             "residual": np.zeros((h, w), np.float32), "used": np.zeros((h, w), np.uint16),
-            "lit": np.zeros((h, w), np.uint16)}
+            "lit": np.zeros((h, w), np.uint16), "leverage": np.full((h, w), np.nan, np.float32)}
 
 
 def scatter_chunk(maps, idx, chunk):
@@ -217,6 +261,8 @@ def scatter_chunk(maps, idx, chunk):
     maps["residual"][rows, cols] = np.where(ok, np.nan_to_num(rms), 0.0)
     maps["used"][rows, cols] = chunk["used"]
     maps["lit"][rows, cols] = chunk["lit"] if "lit" in chunk else chunk["used"]
+    if "leverage" in chunk:
+        maps["leverage"][rows, cols] = np.where(ok, chunk["leverage"], np.nan)
 
 
 def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_size=CHUNK_SIZE, workers=None,
