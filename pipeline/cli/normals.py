@@ -38,6 +38,9 @@ def register(sub):
                         help="frames that see the object shifted against the others (it or the camera "
                              "moved): auto (the default) aligns them by their measured shift and solves "
                              "again where the object's shading pins position, off only says")
+    parser.add_argument("--uncertain-deg", type=float, default=None,
+                        help="expected angular error (degrees) above which a pixel's status is 'uncertain' "
+                             "instead of 'ok' (default 20; its normal is kept)")
     parser.add_argument("--force", action="store_true", help="run even when the stage is up to date")
     parser.set_defaults(func=run)
 
@@ -60,7 +63,7 @@ def run(args):
                              lights_model=args.lights_model, near_depth=args.near_depth == "on",
                              specular_anchor=_switch(args.specular_anchor), frame_gains=_switch(args.frame_gains),
                              t_shadow=args.t_shadow, reject_k=args.reject_k, shape_prior=args.shape_prior,
-                             align=args.align_frames)
+                             align=args.align_frames, uncertain_deg=args.uncertain_deg)
     if record is None:
         print(f"{session.root}: normals up to date (use --force to rerun)")
         return 0

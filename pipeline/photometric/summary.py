@@ -14,7 +14,7 @@ from .frame_gains import UNCALIBRATED_SHARE
 from .methods import share_text
 from .outline import SEEN_WHOLE, mirrored_axes, transposed_axes
 
-__all__ = ["normals_warnings", "normals_summary", "WARN_SHARES"]
+__all__ = ["normals_warnings", "normals_summary", "uncertainty_text", "WARN_SHARES"]
 
 #: shares of the object's pixels above which the summary warns, per status
 WARN_SHARES = {"lambert_fallback": 0.2, "shared_shape": 0.2, "not_converged": 0.05, "too_few": 0.1,
@@ -170,7 +170,22 @@ def normals_summary(record):
     gains = f"; {len(rescaled)} frame(s) rescaled to the others' brightness" if rescaled else ""
     found = record.get("registration") or {}
     aligned = f"; {len(found['moved'])} moved frame(s) aligned to the others" if found.get("aligned") else ""
-    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{aligned}{flagged}"
+    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{aligned}{flagged}{uncertainty_text(record)}"
+
+
+def uncertainty_text(record):
+    """'; 82 % of pixels expected within 5 degrees, 6 % uncertain (over 20 degrees)', or why the
+    run has no uncertainty map ('' for records of earlier versions, which have neither)."""
+    found = record.get("uncertainty")
+    if not found:
+        return ""
+    if "not_estimated" in found:
+        return f"; uncertainty {found['not_estimated']}"
+    pixels = max(found.get("pixels", 0), 1)
+    within = share_text(round(found["within_5"] * pixels), pixels)
+    over = share_text(round(found["over_threshold"] * pixels), pixels)
+    return (f"; {within} of pixels expected within 5 degrees, {over} uncertain "
+            f"(over {found['threshold_deg']:g} degrees)")
 
 
 def _range_text(anchor):

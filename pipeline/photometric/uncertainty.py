@@ -24,7 +24,7 @@ and calibrate, and the leave-one-object-out check (docs/photometric-stereo.md, "
 import numpy as np
 
 __all__ = ["COEFFICIENTS", "FEATURES", "MIN_LIGHTS", "UNCERTAIN_DEG", "uncertainty_features", "predict_uncertainty",
-           "design_matrix", "uncertainty_map", "uncertainty_summary"]
+           "design_matrix", "uncertainty_map", "uncertainty_summary", "roc_auc", "agreement"]
 
 #: Fewer lights than this: the uncertainty is not estimated (a fit of 3 lights leaves no
 #: residual to measure the noise by).
@@ -157,3 +157,43 @@ def uncertainty_summary(uncertainty, mask, threshold=UNCERTAIN_DEG):
     return {"pixels": int(values.size), "within_5": float(np.mean(values <= 5.0)),
             "over_threshold": float(np.mean(values > threshold)), "threshold_deg": float(threshold),
             "median_deg": float(np.median(values))}
+
+
+def roc_auc(score, positive):
+    """Area under the ROC curve of ``score`` (N,) for telling ``positive`` (N,) bool from the
+    rest (ties count half); NaN when either class is empty."""
+    from scipy.stats import rankdata
+
+    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
+    if n_pos == 0 or n_neg == 0:
+        return float("nan")
+    ranks = rankdata(score)
+    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+
+
+def agreement(predicted, actual, bad_deg=UNCERTAIN_DEG, bins=5, floor_deg=1.0, min_bad_share=0.01):
+    """How well predicted errors agree with actual ones (both degrees, (N,), finite).
+
+    Returns
+    -------
+    dict
+        ``bad_share``: the share of pixels more than ``bad_deg`` off; ``auc``: the ROC AUC of
+        the predicted error for telling them from the rest, or None when they are under
+        ``min_bad_share`` of the pixels (too few to judge by); ``bins``: per fifth of the pixels
+        by predicted error, its median predicted and median actual error (each at least
+        ``floor_deg``) and their ratio; ``calibrated_bins``: how many ratios are within a
+        factor of 2.
+    """
+    predicted, actual = np.asarray(predicted, np.float64), np.asarray(actual, np.float64)
+    bad = actual > bad_deg
+    auc = roc_auc(predicted, bad) if bad.mean() >= min_bad_share else None
+    order = np.argsort(predicted, kind="stable")
+    rows = []
+    for part in np.array_split(order, bins):
+        if part.size == 0:
+            continue
+        p = max(float(np.median(predicted[part])), floor_deg)
+        a = max(float(np.median(actual[part])), floor_deg)
+        rows.append({"predicted_deg": round(p, 3), "actual_deg": round(a, 3), "ratio": round(a / p, 3)})
+    return {"pixels": int(predicted.size), "bad_deg": float(bad_deg), "bad_share": float(bad.mean()),
+            "auc": auc, "bins": rows, "calibrated_bins": sum(0.5 <= r["ratio"] <= 2.0 for r in rows)}
