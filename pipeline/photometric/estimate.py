@@ -25,10 +25,11 @@ from .frame_gains import FrameCheck, check_frames
 from .methods import STATUS, get_method
 from .near_lights import PointLights
 from .outline import outline_check
-from .selection import resolve_selection
+from .selection import DARKEST_LEVERAGE_MAX, SURROUND_SAMPLE, darkest_leverage, resolve_selection
 from .uncertainty import UNCERTAIN_DEG, uncertainty_map, uncertainty_summary
 
-__all__ = ["estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_plan_frames", "check_lights",
+__all__ = ["estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_plan_frames",
+           "check_plan_selection", "check_lights",
            "result_from_maps"]
 
 
@@ -117,6 +118,8 @@ class SolvePlan:
     insist: bool = False
     frame_gains: object = "auto"
     uncertain_deg: float = UNCERTAIN_DEG
+    given: dict = None
+    specular_anchor: object = "auto"
     gains: np.ndarray = None
     gain_check: dict = None
 
@@ -196,6 +199,7 @@ def plan_solve(method, lights, options):
     solver = get_method(method)
     near = lights if isinstance(lights, PointLights) else None
     directions = near.central_directions if near is not None else lights
+    given = dict(options)
     options = resolve_selection(directions, options)
     specular_anchor = options.pop("specular_anchor", "auto")
     frame_gains = options.pop("frame_gains", "auto")
@@ -205,7 +209,40 @@ def plan_solve(method, lights, options):
         raise InputError(f"uncertain_deg must be a positive angle in degrees, got {uncertain_deg!r}")
     anchor = anchor_wanted(method, specular_anchor, options, directions, near)
     return SolvePlan(method, solver, directions, near, options, anchor, specular_anchor is True, frame_gains,
-                     uncertain_deg)
+                     uncertain_deg, given, specular_anchor)
+
+
+def check_plan_selection(plan, gather, pixels):
+    """``plan`` with the light layout's choice of the darkest-fraction rule checked on the images.
+
+    :func:`pipeline.photometric.selection.resolve_selection` takes the paper's rule for a wide
+    light set (a percentile of the layout). That rule needs the lights it keeps to determine
+    each normal; a few lights of which two stray push the percentile past the limit while the
+    rest sit in a narrow cone, and the 3-4 darkest of 10 then sit on one side (DiLiGenT ball's
+    lights 7, 12, 41, 42, 61, 68, 69, 86, 87, 94: 8.3 degrees against Lambert's 5.2). So on a
+    sample of the pixels the noise amplification of the lights it keeps is measured
+    (:func:`pipeline.photometric.selection.darkest_leverage`); over
+    :data:`pipeline.photometric.selection.DARKEST_LEVERAGE_MAX` the robust selection is used,
+    as under a narrow cone. Only the rule the layout chose by default is checked; the verdict
+    is ``options["selection_check"]``.
+    """
+    if plan.given is None or plan.method == "lambert" or plan.options.get("selection") != "darkest" or \
+            plan.given.get("selection", "auto") != "auto" or plan.given.get("t_low") is not None:
+        return plan
+    rng = np.random.default_rng(0)
+    sample = np.sort(rng.choice(pixels, min(SURROUND_SAMPLE, len(pixels)), replace=False))
+    obs, valid, lights = gather(sample)
+    leverage = darkest_leverage(obs, valid, lights, plan.options)
+    check = {"layout": "wide", "darkest_leverage": round(leverage, 3), "limit": DARKEST_LEVERAGE_MAX}
+    if not leverage > DARKEST_LEVERAGE_MAX:
+        check["verdict"] = "darkest"
+        return replace(plan, options=dict(plan.options, selection_check=check))
+    check["verdict"] = "robust: the darkest observations do not determine the normals"
+    options = resolve_selection(plan.lights, dict(plan.given, selection="robust"))
+    for key in ("specular_anchor", "frame_gains", "uncertain_deg"):   # the plan's own, not the method's
+        options.pop(key, None)
+    anchor = anchor_wanted(plan.method, plan.specular_anchor, options, plan.lights, plan.near)
+    return replace(plan, options=dict(options, selection_check=check), anchor=anchor)
 
 
 def check_plan_frames(plan, gather, pixels):
@@ -214,6 +251,7 @@ def check_plan_frames(plan, gather, pixels):
     # near lights: an error of the object's depth changes each frame's falloff at every pixel alike,
     # which the check would read as gains (measured: 8 of 16 frames "rescaled" by 0.74 on a plane
     # 30 % nearer than the spheres'); their gains are checked only when asked for
+    plan = check_plan_selection(plan, gather, pixels)
     mode = False if plan.near is not None and plan.frame_gains == "auto" else plan.frame_gains
     # unchecked, no sample is gathered (near lights' per-pixel directions cost; the near-depth
     # search solves many times)
