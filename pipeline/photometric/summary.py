@@ -18,7 +18,7 @@ __all__ = ["normals_warnings", "normals_summary", "uncertainty_text", "WARN_SHAR
 
 #: shares of the object's pixels above which the summary warns, per status
 WARN_SHARES = {"lambert_fallback": 0.2, "shared_shape": 0.2, "not_converged": 0.05, "too_few": 0.1,
-               "shadowed": 0.1, "ill_posed": 0.0}
+               "shadowed": 0.1, "ill_posed": 0.0, "uncertain": 0.1}
 _WARNINGS = {
     "lambert_fallback": "{share} of pixels fell back to Lambert: too few observations for the biquadratic "
                         "model ({lights} lights)",
@@ -27,6 +27,8 @@ _WARNINGS = {
     "not_converged": "{share} of pixels did not converge (their normal still turned after the last step)",
     "too_few": "{share} of pixels had fewer than 3 usable observations: no normal",
     "shadowed": "{share} of pixels were dark in every frame: no normal",
+    "uncertain": "{share} of pixels are uncertain: their expected angular error is over the threshold "
+                 "(normals/uncertainty.exr, the report's expected-error map); their normals are kept",
     "ill_posed": "{count} pixel(s) have no normal: their observations determine none facing the camera "
                  "(lights too close to coplanar there, or lit only indirectly)",
 }

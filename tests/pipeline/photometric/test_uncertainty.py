@@ -139,3 +139,11 @@ def test_ply_carries_per_vertex_quality(tmp_path):
     vert = np.frombuffer(body[:len(mesh.vertices) * 28], dtype=[(k, "<f4") for k in
                                                                   ("x", "y", "z", "nx", "ny", "nz", "quality")])
     np.testing.assert_array_equal(vert["quality"], mesh.quality)
+
+
+def test_many_uncertain_pixels_are_warned_of():
+    from pipeline.photometric.summary import normals_warnings
+
+    warnings = normals_warnings({"ok": 85, "uncertain": 15}, 10, {})
+    assert len(warnings) == 1 and warnings[0].startswith("15.0% of pixels are uncertain")
+    assert normals_warnings({"ok": 95, "uncertain": 5}, 10, {}) == []
