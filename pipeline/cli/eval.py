@@ -44,7 +44,9 @@ def format_summary(result):
                      f"p90 {n['p90_deg']:.2f} deg, under 5/10/20 deg: {n['under_5_deg']:.1%} / "
                      f"{n['under_10_deg']:.1%} / {n['under_20_deg']:.1%} over {n['pixels']} pixels")
     if "normals" in result and "uncertainty" in result["normals"]:
-        lines.append(_uncertainty_line(result["normals"]["uncertainty"]))
+        from ..photometric.uncertainty import agreement_text
+
+        lines.append(f"uncertainty: {agreement_text(result['normals']['uncertainty'])}")
     if "lights" in result:
         lines.append(_lights_line(result["lights"]))
     if "depth" in result:
@@ -53,16 +55,6 @@ def format_summary(result):
         lines.append(f"depth: mean abs {d['mean_abs']:.3f}, median abs {d['median_abs']:.3f} "
                      f"(after {article} {d['fit']} fit)")
     return "\n".join(lines)
-
-
-def _uncertainty_line(found):
-    """The expected errors against the actual ones: AUC for the badly-off pixels and the bins."""
-    bad = f"pixels over {found['bad_deg']:g} deg ({found['bad_share']:.1%})"
-    auc = f"AUC {found['auc']:.3f} for {bad}" if found["auc"] is not None else \
-        f"AUC not judged: {bad}, under 1 %"
-    bins = ", ".join(f"{b['predicted_deg']:.1f}/{b['actual_deg']:.1f}" for b in found["bins"])
-    return (f"uncertainty: {auc}; expected/actual median error per fifth of the pixels (deg): {bins}; "
-            f"within x2 in {found['calibrated_bins']} of {len(found['bins'])}")
 
 
 def _lights_line(lights):

@@ -24,7 +24,7 @@ and calibrate, and the leave-one-object-out check (docs/photometric-stereo.md, "
 import numpy as np
 
 __all__ = ["COEFFICIENTS", "FEATURES", "MIN_LIGHTS", "UNCERTAIN_DEG", "uncertainty_features", "predict_uncertainty",
-           "design_matrix", "uncertainty_map", "uncertainty_summary", "roc_auc", "agreement"]
+           "design_matrix", "uncertainty_map", "uncertainty_summary", "roc_auc", "agreement", "agreement_text"]
 
 #: Fewer lights than this: the uncertainty is not estimated (a fit of 3 lights leaves no
 #: residual to measure the noise by).
@@ -197,3 +197,14 @@ def agreement(predicted, actual, bad_deg=UNCERTAIN_DEG, bins=5, floor_deg=1.0, m
         rows.append({"predicted_deg": round(p, 3), "actual_deg": round(a, 3), "ratio": round(a / p, 3)})
     return {"pixels": int(predicted.size), "bad_deg": float(bad_deg), "bad_share": float(bad.mean()),
             "auc": auc, "bins": rows, "calibrated_bins": sum(0.5 <= r["ratio"] <= 2.0 for r in rows)}
+
+
+def agreement_text(found):
+    """:func:`agreement`'s result as ``psrig eval`` and the report say it: the AUC for the badly
+    off pixels and the five bins' expected / actual median errors."""
+    bad = f"pixels over {found['bad_deg']:g} deg ({found['bad_share']:.1%})"
+    auc = f"AUC {found['auc']:.3f} for {bad}" if found["auc"] is not None else \
+        f"AUC not judged: {bad}, under 1 %"
+    bins = ", ".join(f"{b['predicted_deg']:.1f}/{b['actual_deg']:.1f}" for b in found["bins"])
+    return (f"{auc}; expected/actual median error per fifth of the pixels (deg): {bins}; "
+            f"within x2 in {found['calibrated_bins']} of {len(found['bins'])}")
