@@ -3,7 +3,8 @@
     python benchmarks/diligent.py ../shared/data/diligent [--methods biquadratic,lambert,...]
 
 For each object folder (``*PNG`` with Normal_gt.mat) and method: mean / median angular error
-over the mask (degrees; a pixel without a normal counts 90), the published Lambertian least
+over the mask (degrees; a pixel without a normal counts 90), the mean over the pixels given a
+normal (``eval``: what ``psrig eval`` prints for the imported session), the published Lambertian least
 squares and ST14 figures, wall time, pixels per second and the time ratio to a BLAS Lambertian
 solve ``pinv(L) @ I`` run in the same process; then each method's mean over the objects.
 """
@@ -46,24 +47,25 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=1, help="timing runs (best is reported)")
     args = parser.parse_args(argv)
     folders = sorted(p for p in Path(args.data).iterdir() if (p / "filenames.txt").is_file())
-    print(f"{'object':8} {'method':14} {'mean':>6} {'median':>6} {'L2 pub':>6} {'ST14 pub':>8} "
+    print(f"{'object':8} {'method':14} {'mean':>6} {'median':>6} {'eval':>6} {'L2 pub':>6} {'ST14 pub':>8} "
           f"{'time s':>7} {'px/s':>9} {'x pinv':>7}")
     means = {}
     for folder in folders:
         obj = read_diligent(folder)
-        images = obj.load_images()
+        images, valid = obj.load_images()   # saturated observations left out, as psrig decode does
         baseline = pinv_seconds(images, obj.directions, obj.mask)
         for method in args.methods.split(","):
             times = []
             for _ in range(args.repeat):
                 start = time.perf_counter()
-                result = estimate_normals(images, obj.directions, obj.mask, method=method)
+                result = estimate_normals(images, obj.directions, obj.mask, method=method, valid=valid)
                 times.append(time.perf_counter() - start)
             best = min(times)
             err = angular_error(result.normals, obj.normals_gt, obj.mask)
+            given = np.linalg.norm(result.normals[obj.mask], axis=1) > 0
             means.setdefault(method, []).append(err.mean())
             l2, st14 = PUBLISHED.get(obj.name, (float("nan"), float("nan")))
-            print(f"{obj.name:8} {method:14} {err.mean():6.2f} {np.median(err):6.2f} {l2:6.2f} {st14:8.2f} "
+            print(f"{obj.name:8} {method:14} {err.mean():6.2f} {np.median(err):6.2f} {err[given].mean():6.2f} {l2:6.2f} {st14:8.2f} "
                   f"{best:7.2f} {obj.mask.sum() / best:9.0f} {best / baseline:7.0f}", flush=True)
     names = [f.name[:-3] for f in folders]
     st14 = [PUBLISHED.get(n, (np.nan, np.nan))[1] for n in names]

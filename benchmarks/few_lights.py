@@ -34,11 +34,12 @@ def subsets(count, lights, n, seed):
     return [np.sort(rng.choice(lights, count, replace=False)) for _ in range(n)]
 
 
-def solve(images, obj, chosen):
+def solve(images, valid, obj, chosen):
     """Each method's errors (H, W) over the mask and where it gives a normal (H, W) bool."""
     found = {}
     for method in METHODS:
-        normals = estimate_normals(images[chosen], obj.directions[chosen], obj.mask, method=method).normals
+        normals = estimate_normals(images[chosen], obj.directions[chosen], obj.mask, method=method,
+                                   valid=valid[chosen]).normals
         errors = np.zeros(obj.mask.shape)
         errors[obj.mask] = angular_error_deg(normals, obj.normals_gt, obj.mask)
         found[method] = (errors, obj.mask & (np.linalg.norm(normals, axis=2) > 0))
@@ -58,9 +59,9 @@ def main(argv=None):
           f" {'common: lambert':>16} {'default':>8} {'cover':>6}")
     for count in (int(c) for c in args.counts.split(",")):
         errors, common, cover = {m: [] for m in METHODS}, [], []
-        for j, (obj, images) in enumerate(zip(objects, stacks)):
+        for j, (obj, (images, valid)) in enumerate(zip(objects, stacks)):
             for i, chosen in enumerate(subsets(count, len(images), args.subsets, args.seed + 1000 * count + 100 * j)):
-                found = solve(images, obj, chosen)
+                found = solve(images, valid, obj, chosen)
                 shared = np.logical_and.reduce([has for _, has in found.values()])
                 row = {m: float(found[m][0][obj.mask].mean()) for m in METHODS}
                 # no pixel in common: lights too close to coplanar for every method (NaN, left out)

@@ -83,7 +83,7 @@ def main(argv=None):
     print(f"{'case':34s} {'default':>8} {'trusted':>8} {'right':>8} {'rescaled/off':>9} {'gain err':>9} "
           f"{'false':>6}")
     worst_false = 0
-    stacks = [obj.load_images() for obj in objects]
+    stacks = [obj.load_images()[0] for obj in objects]
     for j, (obj, images) in enumerate(zip(objects, stacks)):
         rng = np.random.default_rng(args.seed + 100 * j)
         right = None

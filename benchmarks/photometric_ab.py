@@ -87,7 +87,7 @@ def main(argv=None):
             obj = read_diligent(path)
             if wanted and obj.name not in wanted:
                 continue
-            compare(obj.name, obj.load_images(), obj.directions, obj.mask, old, args.repeat)
+            compare(obj.name, obj.load_images()[0], obj.directions, obj.mask, old, args.repeat)
 
 
 if __name__ == "__main__":

@@ -33,7 +33,7 @@ from diligent import pinv_seconds  # the one baseline, beside this script
 TARGET_RATIO = 100
 
 
-def timed(images, lights, mask, repeat, workers):
+def timed(images, lights, mask, repeat, workers, valid=None):
     """Best wall and CPU seconds of the default estimator, the last result, the baseline's best
     seconds, timed just before each run (so that both see the same minutes of a shared machine:
     measured once beforehand, ball's baseline alone moved 0.7-1.5 ms between runs), and the
@@ -42,7 +42,7 @@ def timed(images, lights, mask, repeat, workers):
     for _ in range(repeat):
         baselines.append(pinv_seconds(images, lights, mask))
         start, cpu = time.perf_counter(), time.process_time()
-        result = estimate_normals(images, lights, mask, workers=workers)
+        result = estimate_normals(images, lights, mask, workers=workers, valid=valid)
         walls.append(time.perf_counter() - start)
         cpus.append(time.process_time() - cpu)
     return result, min(walls), min(cpus), min(baselines), float(np.median(np.array(walls) / np.array(baselines)))
@@ -58,8 +58,8 @@ def real_objects(folder, repeat, workers):
     worst = 0.0
     for path in sorted(p for p in Path(folder).iterdir() if (p / "filenames.txt").is_file()):
         obj = read_diligent(path)
-        images = obj.load_images()
-        result, wall, cpu, baseline, pairs = timed(images, obj.directions, obj.mask, repeat, workers)
+        images, valid = obj.load_images()
+        result, wall, cpu, baseline, pairs = timed(images, obj.directions, obj.mask, repeat, workers, valid)
         ratio = wall / baseline
         worst = max(worst, ratio)
         print(f"{obj.name:8} {int(obj.mask.sum()):7d} {len(images):6d} {baseline * 1e3:8.2f} {wall:9.3f} {cpu:6.2f} "

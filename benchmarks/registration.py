@@ -71,7 +71,7 @@ def main():
     wrong = 0
     for path in sorted(p for p in Path(args.diligent).iterdir() if (p / "filenames.txt").is_file()):
         obj = read_diligent(path)
-        images, lights, mask, truth = obj.load_images(), obj.directions, obj.mask, obj.normals_gt
+        images, lights, mask, truth = obj.load_images()[0], obj.directions, obj.mask, obj.normals_gt
         count = len(images)
         rng = np.random.default_rng(args.seed)
         print(f"{obj.name} ({count} lights, {int(mask.sum())} px): error all / named left out (deg)")

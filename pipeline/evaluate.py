@@ -24,7 +24,7 @@ from .atomic import atomic_write_text
 from .errors import InputError
 from .imageio import read_image, read_mask, read_normal_png, write_image
 from .lightsio import read_lights
-from .paths import DEPTH, ERROR_MAP, EVAL, INTEGRATION, LIGHTS, NORMALS, NORMALS_MASK
+from .paths import DEPTH, ERROR_MAP, EVAL, INTEGRATION, LIGHTS, NORMALS, NORMALS_MASK, UNCERTAINTY
 from .settings.report import ReportOptions
 from .yamlio import load_yaml
 
@@ -192,7 +192,31 @@ def _eval_normals(session, max_deg):
     rgb, stats["error_map_max_deg"] = error_map_rgb(errors, max_deg)
     write_image(session.path(ERROR_MAP), rgb, bits=8)
     stats["error_map"] = ERROR_MAP
+    found = _eval_uncertainty(session, errors)
+    if found is not None:
+        stats["uncertainty"] = found
     return stats
+
+
+def _eval_uncertainty(session, errors):
+    """How the normals stage's expected errors (``normals/uncertainty.exr``) agree with the
+    actual ``errors`` (H, W, degrees): :func:`pipeline.photometric.uncertainty.agreement` over
+    the pixels that have both; None without a map."""
+    from .photometric.uncertainty import agreement
+
+    path = session.path(UNCERTAINTY)
+    if not path.is_file():
+        return None
+    predicted = read_image(path)[:, :, 0]
+    if predicted.shape != errors.shape:
+        raise InputError(f"{path}: {predicted.shape[1]}x{predicted.shape[0]}, but the normals are "
+                         f"{errors.shape[1]}x{errors.shape[0]}")
+    both = np.isfinite(predicted) & np.isfinite(errors)
+    if not both.any():
+        return None
+    found = agreement(predicted[both], errors[both])
+    return {**found, "bad_share": round(found["bad_share"], 5),
+            "auc": None if found["auc"] is None else round(found["auc"], 4)}
 
 
 def intensity_errors(estimated, truth):

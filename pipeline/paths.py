@@ -5,7 +5,7 @@ on where it lies. Paths are POSIX-style and relative to the session folder
 (:meth:`pipeline.session.Session.path` resolves and checks them).
 """
 
-__all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "SPHERE_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "STATUS_MAP",
+__all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "SPHERE_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "UNCERTAINTY", "STATUS_MAP",
            "OBSERVATIONS", "LIT_OBSERVATIONS", "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION",
            "REPORT", "TRUTH_LIGHTS", "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK", "DECODE_SCRATCH",
            "TILES_SCRATCH", "SCRATCH", "linear_frame", "saturation_frame"]
@@ -37,6 +37,9 @@ NORMALS = "normals/normals.exr"
 NORMALS_MASK = "normals/mask.png"
 ALBEDO = "normals/albedo.exr"
 RESIDUAL = "normals/residual.exr"
+#: each pixel's expected angular error in degrees, channel "uncertainty" (NaN: no normal);
+#: absent when the run could not estimate it
+UNCERTAINTY = "normals/uncertainty.exr"
 STATUS_MAP = "normals/status.png"
 #: per pixel, the number of observations the fit used (16-bit)
 OBSERVATIONS = "normals/observations.png"

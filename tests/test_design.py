@@ -13,7 +13,7 @@ DESIGN = Path(__file__).resolve().parents[1] / "docs" / "design.md"
                                   "IntegrateOptions", "ReportOptions"])
 def test_the_design_states_each_stage_option_with_its_declared_default(name):
     table = getattr(settings, name).table()
-    assert table in DESIGN.read_text(encoding="utf-8"), f"docs/design.md: the {name} table differs from the code"
+    assert table in DESIGN.read_text(encoding="utf-8"), f"docs/design.md: the {name} table differs from the code (python docs/options_tables.py)"
 
 
 def test_every_stage_is_described_with_the_file_it_lives_in():

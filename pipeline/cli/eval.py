@@ -43,6 +43,10 @@ def format_summary(result):
         lines.append(f"normals: mean {n['mean_deg']:.2f} deg, median {n['median_deg']:.2f} deg, "
                      f"p90 {n['p90_deg']:.2f} deg, under 5/10/20 deg: {n['under_5_deg']:.1%} / "
                      f"{n['under_10_deg']:.1%} / {n['under_20_deg']:.1%} over {n['pixels']} pixels")
+    if "normals" in result and "uncertainty" in result["normals"]:
+        from ..photometric.uncertainty import agreement_text
+
+        lines.append(f"uncertainty: {agreement_text(result['normals']['uncertainty'])}")
     if "lights" in result:
         lines.append(_lights_line(result["lights"]))
     if "depth" in result:

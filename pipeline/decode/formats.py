@@ -132,14 +132,14 @@ def check_image_size(path, height, width):
     """FrameTooLarge when an image frame of ``height`` x ``width`` pixels (from its header) is
     beyond :data:`MAX_IMAGE_PIXELS` or its decoding (:data:`IMAGE_DECODE_BYTES_PER_PIXEL`)
     beyond half of this machine's memory; checked before any pixel is read."""
-    from .raw import _memory
+    from .raw import physical_memory
 
     pixels = int(height) * int(width)
     size = f"{width} x {height} image ({pixels / 1e6:.1f} MP)"
     if pixels > MAX_IMAGE_PIXELS:
         raise FrameTooLarge(f"{path}: a {size} is more than the {MAX_IMAGE_PIXELS / 1e6:.0f} MP psrig decodes "
                             "as a frame; a damaged or forged file, or crop or scale it down")
-    need, budget = pixels * IMAGE_DECODE_BYTES_PER_PIXEL, _memory() // 2
+    need, budget = pixels * IMAGE_DECODE_BYTES_PER_PIXEL, physical_memory() // 2
     if budget and need > budget:
         raise FrameTooLarge(f"{path}: a {size} needs about {need / 2**30:.1f} GiB to decode, more than "
                             f"half of this machine's {2 * budget / 2**30:.1f} GiB")

@@ -31,7 +31,7 @@ from ..errors import ImageFileError
 from ..registry import Registry
 
 __all__ = ["open_raw", "raw_layout", "decode_raw", "bilinear_demosaic", "bin2x2", "bin_rgb", "METHODS", "RawPath",
-           "OTHER_LAYOUTS"]
+           "OTHER_LAYOUTS", "physical_memory"]
 
 #: raw decoding paths by name (``psrig decode --method NAME``), see :class:`RawPath`
 METHODS = Registry("raw decoding method")
@@ -79,13 +79,13 @@ def _check_claimed_size(sizes, path):
         raise ImageFileError(f"{path}: the header claims {size} photosites, more than the "
                              f"{os.path.getsize(path)} bytes of the file can hold; a damaged or "
                              "forged raw file")
-    need, budget = photosites * DECODE_BYTES_PER_PHOTOSITE, _memory() // 2
+    need, budget = photosites * DECODE_BYTES_PER_PHOTOSITE, physical_memory() // 2
     if budget and need > budget:
         raise ImageFileError(f"{path}: a {size} raw frame needs about {need / 2**30:.1f} GiB to "
                              f"decode, more than half of this machine's {2 * budget / 2**30:.1f} GiB")
 
 
-def _memory():
+def physical_memory():
     """Physical memory in bytes (0 when unknown)."""
     try:
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")

@@ -217,6 +217,6 @@ def run_diligent(folder, t_low=0.25, methods=PS_METHODS, shadow=0.1, psrig_defau
     obj = read_diligent(folder)
     if obj.normals_gt is None:
         raise InputError(f"{folder}: no Normal_gt.mat to score against")
-    images = obj.load_images(grey=True)
+    images = obj.load_images(grey=True)[0]
     lights = obj.directions / np.linalg.norm(obj.directions, axis=1, keepdims=True)
     return run_methods(images, lights, obj.mask, obj.normals_gt, t_low, methods, shadow, psrig_default)

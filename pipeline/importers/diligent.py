@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..imageio import read_image, read_mask
+from ..imageio import read_mask
 from ..lightsio import LightSet
 from ..session import Session
 from .write import add_frames, check_sizes, check_target, write_lights, write_object_mask, write_truth_lights, \
@@ -42,12 +42,36 @@ class DiligentObject:
     normals_gt: np.ndarray = None
 
     def load_images(self, grey=True):
-        """Images divided by the light intensities: (K, H, W) grey (channel mean) or (K, H, W, 3)."""
-        stack = []
+        """The frames as the command line's decode reads them, intensities divided out.
+
+        Each file is decoded by :func:`pipeline.decode.image.decode_image` with the transfer
+        function chosen as ``psrig decode`` chooses it (16-bit PNG without colour metadata:
+        linear), and an observation is saturated where any channel is at the type's maximum:
+        the same rule as decode's saturation masks, so a fit on these arrays sees what
+        ``psrig normals`` sees on an imported session.
+
+        Parameters
+        ----------
+        grey : bool
+            True: the channel mean (K, H, W); False: (K, H, W, 3).
+
+        Returns
+        -------
+        images : ndarray (K, H, W) or (K, H, W, 3) float32
+            Linear values divided by the light intensities.
+        valid : ndarray (K, H, W) bool
+            False where the observation is saturated (pass it as ``estimate_normals``'s
+            ``valid``).
+        """
+        from ..decode.image import decode_image
+
+        stack, valid = [], []
         for path, intensity in zip(self.files, self.intensities):
-            rgb = read_image(path)[:, :, :3] / intensity.astype(np.float32)
+            rgb, saturated, _ = decode_image(path)
+            rgb = rgb / intensity.astype(np.float32)
             stack.append(rgb.mean(axis=2) if grey else rgb)
-        return np.stack(stack)
+            valid.append(~saturated)
+        return np.stack(stack), np.stack(valid)
 
 
 def _table(path, columns):

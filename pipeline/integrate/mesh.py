@@ -183,6 +183,9 @@ class Mesh:
         Faces left out across depth jumps.
     unit : str
         'px', 'up to scale', or the unit of ``scale`` (e.g. 'mm').
+    quality : ndarray (V,) float32, optional
+        Each vertex's expected angular error of its normal (degrees; -1 where unknown), the PLY's
+        per-vertex ``quality``.
     """
 
     vertices: np.ndarray
@@ -193,9 +196,11 @@ class Mesh:
     colours: np.ndarray = None
     dropped: int = 0
     unit: str = "px"
+    quality: np.ndarray = None
 
 
-def build_mesh(depth, K=None, normals=None, albedo=None, *, scale=None, unit=None, max_slope_deg=MAX_SLOPE_DEG):
+def build_mesh(depth, K=None, normals=None, albedo=None, *, scale=None, unit=None, max_slope_deg=MAX_SLOPE_DEG,
+               uncertainty=None):
     """The mesh of a depth map over its finite pixels, split at depth jumps.
 
     Parameters
@@ -215,6 +220,9 @@ def build_mesh(depth, K=None, normals=None, albedo=None, *, scale=None, unit=Non
     unit : str, optional
         Name of the length unit of ``scale`` (default 'px' orthographic, 'up to scale'
         perspective when no scale is given).
+    uncertainty : ndarray (H, W), optional
+        Expected angular error of each pixel's normal (degrees, NaN where unknown): the
+        vertices' ``quality`` (-1 where unknown).
 
     Returns
     -------
@@ -232,8 +240,12 @@ def build_mesh(depth, K=None, normals=None, albedo=None, *, scale=None, unit=Non
     colours = None if albedo is None else albedo_colours(np.asarray(albedo)[mask])[0]
     if unit is None:
         unit = "px" if K is None else "up to scale"
+    quality = None
+    if uncertainty is not None:
+        quality = np.asarray(uncertainty, np.float32)[mask]
+        quality = np.where(np.isfinite(quality), quality, np.float32(-1.0))
     return Mesh(vertices, vertex_normals, faces[kept], np.argwhere(mask), depth.shape, colours,
-                int((~kept).sum()), unit)
+                int((~kept).sum()), unit, quality)
 
 
 def _vertex_normals(points, mask, normals):
@@ -255,9 +267,10 @@ def _check_finite(path, *arrays):
         raise InputError(f"{path}: refusing to write non-finite vertices or normals")
 
 
-def write_ply(path, vertices, normals, faces, colours=None, comments=()):
+def write_ply(path, vertices, normals, faces, colours=None, comments=(), quality=None):
     """Write a binary little-endian PLY atomically: float32 x y z nx ny nz, uchar red green
-    blue when ``colours`` are given, int32 triangles.
+    blue when ``colours`` are given, float32 quality when ``quality`` is (MeshLab colours by
+    it: Filters > Color Creation > Colorize by vertex Quality), int32 triangles.
 
     Parameters
     ----------
@@ -266,6 +279,8 @@ def write_ply(path, vertices, normals, faces, colours=None, comments=()):
     colours : ndarray (V, 3) uint8, optional
     comments : sequence of str
         Header comments (units, where the colours come from).
+    quality : ndarray (V,), optional
+        Per-vertex scalar (psrig: the normal's expected angular error in degrees).
     """
     vertices = np.asarray(vertices, np.float32)
     normals = np.asarray(normals, np.float32)
@@ -273,6 +288,8 @@ def write_ply(path, vertices, normals, faces, colours=None, comments=()):
     fields = [(k, "<f4") for k in ("x", "y", "z", "nx", "ny", "nz")]
     if colours is not None:
         fields += [(k, "u1") for k in ("red", "green", "blue")]
+    if quality is not None:
+        fields.append(("quality", "<f4"))
     vert = np.empty(len(vertices), dtype=fields)
     for column, key in enumerate(("x", "y", "z")):
         vert[key] = vertices[:, column]
@@ -280,6 +297,8 @@ def write_ply(path, vertices, normals, faces, colours=None, comments=()):
     if colours is not None:
         for column, key in enumerate(("red", "green", "blue")):
             vert[key] = np.asarray(colours)[:, column]
+    if quality is not None:
+        vert["quality"] = np.asarray(quality, np.float32)
     face = np.empty(len(faces), dtype=[("n", "u1"), ("v", "<i4", (3,))])
     face["n"] = 3
     face["v"] = faces

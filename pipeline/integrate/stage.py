@@ -1,7 +1,8 @@
 """The ``integrate`` stage: normals/normals.exr + normals/mask.png -> depth/.
 
 Writes ``depth/depth.exr`` (float32, NaN outside the mask), ``depth/mesh.ply`` (vertex colour
-from the albedo), ``depth/mesh.obj`` with ``mesh.mtl`` and the albedo texture ``albedo.png``,
+from the albedo, per-vertex ``quality`` from ``normals/uncertainty.exr`` when the normals stage
+wrote one), ``depth/mesh.obj`` with ``mesh.mtl`` and the albedo texture ``albedo.png``,
 ``depth/shaded.png`` and ``depth/integration.yaml`` (method, projection, components and the
 statement that offsets / scales between components are unknown, the mesh's unit and the faces
 left out across depth jumps), then records the stage.
@@ -17,7 +18,8 @@ import yaml
 from ..atomic import atomic_write_text
 from ..errors import InputError, StageError
 from ..imageio import read_image, read_mask, write_image
-from ..paths import ALBEDO, DEPTH, INTEGRATION, MESH, MESH_OBJ, MESH_TEXTURE, NORMALS, NORMALS_MASK, SHADED
+from ..paths import (ALBEDO, DEPTH, INTEGRATION, MESH, MESH_OBJ, MESH_TEXTURE, NORMALS, NORMALS_MASK, SHADED,
+                     UNCERTAINTY)
 from ..settings.integrate import IntegrateOptions
 from ..core.stage import Stage
 from .mesh import MAX_SLOPE_DEG, albedo_colours, build_mesh, write_obj, write_ply, write_shaded
@@ -94,7 +96,7 @@ def mesh_units(K=None, pixel_size=None, distance=None, unit=None):
     return float(value), unit or "mm"
 
 
-def write_depth_outputs(folder, result, normals, K=None, info=None, albedo=None, **mesh_options):
+def write_depth_outputs(folder, result, normals, K=None, info=None, albedo=None, uncertainty=None, **mesh_options):
     """Write depth.exr, mesh.ply, mesh.obj (+ mesh.mtl, albedo.png), shaded.png and
     integration.yaml into ``folder``.
 
@@ -107,6 +109,8 @@ def write_depth_outputs(folder, result, normals, K=None, info=None, albedo=None,
         Extra keys for integration.yaml (input files, ...).
     albedo : ndarray (H, W) or (H, W, C), optional
         Vertex colours and the OBJ's texture; none without it.
+    uncertainty : ndarray (H, W), optional
+        The normals' expected angular error (degrees): the PLY's per-vertex ``quality``.
     mesh_options
         ``pixel_size``, ``distance``, ``unit`` (:func:`mesh_units`), ``max_slope_deg``.
 
@@ -119,9 +123,12 @@ def write_depth_outputs(folder, result, normals, K=None, info=None, albedo=None,
     scale, unit = mesh_units(K, mesh_options.get("pixel_size"), mesh_options.get("distance"), mesh_options.get("unit"))
     slope = float(mesh_options.get("max_slope_deg") or MAX_SLOPE_DEG)
     write_image(folder / "depth.exr", result.depth.astype(np.float32), bits=32)
-    mesh = build_mesh(result.depth, K, normals, albedo, scale=scale, unit=unit, max_slope_deg=slope)
+    mesh = build_mesh(result.depth, K, normals, albedo, scale=scale, unit=unit, max_slope_deg=slope,
+                      uncertainty=uncertainty)
     comments = [f"unit {unit}", "vertex colour: albedo, sRGB" if albedo is not None else "no colour"]
-    write_ply(folder / "mesh.ply", mesh.vertices, mesh.normals, mesh.faces, mesh.colours, comments)
+    if mesh.quality is not None:
+        comments.append("vertex quality: expected angular error of the normal, degrees (-1: unknown)")
+    write_ply(folder / "mesh.ply", mesh.vertices, mesh.normals, mesh.faces, mesh.colours, comments, mesh.quality)
     texture = None
     if albedo is not None:
         texture = Path(MESH_TEXTURE).name
@@ -149,7 +156,8 @@ def write_depth_outputs(folder, result, normals, K=None, info=None, albedo=None,
         "seconds": round(result.seconds, 3),
         "mesh": {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "unit": unit, "scale": scale,
                  "max_slope_deg": slope, "faces_left_out_at_jumps": mesh.dropped,
-                 "colour": "albedo (sRGB)" if albedo is not None else None},
+                 "colour": "albedo (sRGB)" if albedo is not None else None,
+                 "quality": "expected angular error, degrees" if mesh.quality is not None else None},
         "warnings": warnings,
     }
     summary.update(info or {})
@@ -192,7 +200,7 @@ def integrate_session(session, *, K=None, method="smooth", force=False, invalid=
     mesh_units(K, **{k: v for k, v in mesh_options.items() if k != "max_slope_deg"})  # refuse before solving
     # the mesh's options are recorded with the method's, so that `psrig run` keeps them
     params = {"method": method, "K": None if K is None else K.tolist(), "options": {**options, **mesh_options}}
-    rels = [NORMALS, MASK] + ([ALBEDO] if session.path(ALBEDO).is_file() else [])
+    rels = [NORMALS, MASK] + [rel for rel in (ALBEDO, UNCERTAINTY) if session.path(rel).is_file()]
     inputs = session.hash_inputs(rels)
     if not force and session.stage_is_current("integrate", params, inputs):
         return None
@@ -202,8 +210,11 @@ def integrate_session(session, *, K=None, method="smooth", force=False, invalid=
     albedo = read_image(session.path(ALBEDO)) if ALBEDO in inputs else None
     if albedo is not None and albedo.shape[:2] != mask.shape:
         raise InputError(f"{session.path(ALBEDO)}: size {albedo.shape[:2]} differs from {NORMALS} {mask.shape}")
+    uncertainty = read_image(session.path(UNCERTAINTY))[:, :, 0] if UNCERTAINTY in inputs else None
+    if uncertainty is not None and uncertainty.shape != mask.shape:
+        raise InputError(f"{session.path(UNCERTAINTY)}: size {uncertainty.shape} differs from {NORMALS} {mask.shape}")
     summary = write_depth_outputs(session.path("depth"), result, normals, K,
-                                  {"inputs": {rel: inputs[rel] for rel in rels}}, albedo, **mesh_options)
+                                  {"inputs": {rel: inputs[rel] for rel in rels}}, albedo, uncertainty, **mesh_options)
     result.warnings = summary["warnings"]  # the mesh's too, for whoever prints them
     session.record_stage("integrate", params, inputs, list(OUTPUTS if albedo is not None else _UNCOLOURED),
                          seconds=time.perf_counter() - start, components=result.n_components,

@@ -30,7 +30,6 @@ observations are in memory: about 1 % more CPU time when nothing is corrected.
 import numpy as np
 
 from ..errors import InputError
-from .methods import get_method, method_traits
 from .model import half_vectors
 
 __all__ = ["scale_cone", "highlight_mismatch", "first_verdict", "anchor_scale", "anchor_wanted", "root_range",
@@ -251,9 +250,9 @@ def root_range(mismatch, probe_mismatch, probed, max_change=MAX_CHANGE, draws=RE
     return [float(v) for v in np.percentile(roots, [16, 84])]
 
 
-def anchor_wanted(method, specular_anchor, options, lights, near):
-    """Whether to anchor the light cone on specular peaks (this module); ``method`` is the
-    method's name.
+def anchor_wanted(wants, specular_anchor, options, lights, near):
+    """Whether to anchor the light cone on specular peaks (this module); ``wants`` is the
+    method's ``wants_anchor`` (:func:`pipeline.photometric.methods.method_traits`).
 
     'auto': for a method that wants it (its ``wants_anchor``: the biquadratic) with robust selection (the narrow-cone case, where the
     slant is nearly ambiguous) and directional lights shared by all pixels. True: for any
@@ -265,6 +264,5 @@ def anchor_wanted(method, specular_anchor, options, lights, near):
     if near is not None or np.asarray(lights).ndim != 2 or specular_anchor is False:
         return False
     # 'auto' follows the narrow-cone default path only: robust selection (no explicit t_low)
-    wants = method_traits(get_method(method)).wants_anchor
     return specular_anchor is True or (wants and options.get("selection") == "robust"
                                        and options.get("t_low") is None)

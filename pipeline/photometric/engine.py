@@ -24,11 +24,12 @@ import numpy as np
 
 from ..jit import single_threaded
 from .anchor import highlight_mismatch
+from .lambert import normal_leverage
 from .methods import STATUS
 from .near_lights import PointLights, observations_at
 
 __all__ = ["Context", "ChunkRun", "OnePhase", "KeptSelection", "phases_of", "gatherer", "prepare_context",
-           "solve_chunk", "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS",
+           "solve_chunk", "normal_leverage", "allocate_maps", "scatter_chunk", "run_chunks", "LOOKAHEAD_BYTES", "CHUNK_SIZE", "SHARED_KEYS",
            "CHUNK_KEYS", "NO_NORMAL"]
 
 #: statuses without a normal (zero in the maps)
@@ -36,7 +37,7 @@ NO_NORMAL = (STATUS["too_few"], STATUS["shadowed"], STATUS["ill_posed"])
 #: what a method's context reports in the result: the shared shape and its check
 SHARED_KEYS = ("shape_paper", "shape_check")
 #: what a solved chunk holds, per pixel (a method without "lit" counts its used observations)
-CHUNK_KEYS = ("b", "status", "used", "lit", "rss", "params")
+CHUNK_KEYS = ("b", "status", "used", "lit", "rss", "params", "leverage")
 #: Pixels per chunk (memory per chunk is about CHUNK_SIZE x K x 200 bytes)
 CHUNK_SIZE = 2048
 #: Bytes of observations (float64) a worker holds selected ahead while the shared context is
@@ -186,6 +187,7 @@ def solve_chunk(phases, picked, context, options, anchor):
     that show a peak) are measured here, on the chunk's observations already in memory.
     """
     chunk = phases.fit(picked, context=context, **options)
+    chunk["leverage"] = normal_leverage(chunk["b"], picked.get("weights", picked.get("valid")), picked["lights"])
     if anchor:
         chunk["mismatch"], chunk["peaks"] = highlight_mismatch(picked["obs"], np.nan_to_num(chunk["b"]),
                                                                picked["lights"], valid=picked["valid"], rows=True)
@@ -198,7 +200,7 @@ def allocate_maps(shape, n_params):
     return {"normals": np.zeros((h, w, 3), np.float32), "status": np.zeros((h, w), np.uint8),
             "albedo": np.zeros((h, w), np.float32), "params": np.zeros((h, w, n_params), np.float32),
             "residual": np.zeros((h, w), np.float32), "used": np.zeros((h, w), np.uint16),
-            "lit": np.zeros((h, w), np.uint16)}
+            "lit": np.zeros((h, w), np.uint16), "leverage": np.full((h, w), np.nan, np.float32)}
 
 
 def scatter_chunk(maps, idx, chunk):
@@ -217,6 +219,8 @@ def scatter_chunk(maps, idx, chunk):
     maps["residual"][rows, cols] = np.where(ok, np.nan_to_num(rms), 0.0)
     maps["used"][rows, cols] = chunk["used"]
     maps["lit"][rows, cols] = chunk["lit"] if "lit" in chunk else chunk["used"]
+    if "leverage" in chunk:
+        maps["leverage"][rows, cols] = np.where(ok, chunk["leverage"], np.nan)
 
 
 def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_size=CHUNK_SIZE, workers=None,

@@ -22,12 +22,14 @@ from ..jit import single_threaded
 from .anchor import anchor_scale, anchor_wanted, first_verdict
 from .engine import CHUNK_SIZE, KeptSelection, gatherer, prepare_context, run_chunks
 from .frame_gains import FrameCheck, check_frames
-from .methods import check_method_options, get_method
+from .methods import STATUS, check_method_options, get_method, method_traits
 from .near_lights import PointLights
 from .outline import outline_check
-from .selection import resolve_selection
+from .selection import DARKEST_LEVERAGE_MAX, SURROUND_SAMPLE, darkest_leverage, resolve_selection
+from .uncertainty import UNCERTAIN_DEG, uncertainty_map, uncertainty_summary
 
-__all__ = ["estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_plan_frames", "check_lights",
+__all__ = ["estimate_normals", "PhotometricResult", "SolvePlan", "plan_solve", "check_plan_frames",
+           "check_plan_selection", "check_lights",
            "result_from_maps"]
 
 
@@ -43,7 +45,8 @@ class PhotometricResult:
         Pixels that were processed.
     status : ndarray (H, W) uint8
         Codes of :data:`pipeline.photometric.STATUS` (ok, shadowed, too_few, not_converged,
-        lambert_fallback).
+        lambert_fallback, shared_shape, ill_posed, uncertain: an ``ok`` pixel whose expected
+        error is over ``uncertain_deg``; its normal is kept).
     albedo : ndarray (H, W) float32
         Diffuse scale (|b|), in units of the input intensities.
     params : ndarray (H, W, P) float32
@@ -55,6 +58,14 @@ class PhotometricResult:
     lit : ndarray (H, W) uint16
         Number of observations above the shadow threshold per pixel (the ones the selection
         chose from; ``used`` for methods that use every valid observation).
+    leverage : ndarray (H, W) float32
+        :func:`pipeline.photometric.lambert.normal_leverage`: the normal's angular standard
+        deviation (radians) per unit of noise relative to the albedo, from the lights each pixel
+        used; NaN where there is no normal.
+    uncertainty : ndarray (H, W) float32 or None
+        Each pixel's expected angular error in degrees (:mod:`pipeline.photometric.uncertainty`),
+        NaN where there is no normal; None when it cannot be estimated (``options["uncertainty"]``
+        says why).
     """
 
     normals: np.ndarray
@@ -69,6 +80,8 @@ class PhotometricResult:
     seconds: float = 0.0
     shared_shape: np.ndarray = None
     lit: np.ndarray = None
+    leverage: np.ndarray = None
+    uncertainty: np.ndarray = None
 
 
 @dataclass
@@ -104,6 +117,9 @@ class SolvePlan:
     anchor: bool = False
     insist: bool = False
     frame_gains: object = "auto"
+    uncertain_deg: float = UNCERTAIN_DEG
+    given: dict = None
+    specular_anchor: object = "auto"
     gains: np.ndarray = None
     gain_check: dict = None
 
@@ -183,11 +199,51 @@ def plan_solve(method, lights, options):
     solver = get_method(method)
     near = lights if isinstance(lights, PointLights) else None
     directions = near.central_directions if near is not None else lights
+    given = dict(options)
     options = resolve_selection(directions, options)
     specular_anchor = options.pop("specular_anchor", "auto")
     frame_gains = options.pop("frame_gains", "auto")
-    anchor = anchor_wanted(method, specular_anchor, options, directions, near)
-    return SolvePlan(method, solver, directions, near, options, anchor, specular_anchor is True, frame_gains)
+    uncertain_deg = options.pop("uncertain_deg", None)
+    uncertain_deg = UNCERTAIN_DEG if uncertain_deg is None else float(uncertain_deg)
+    if not uncertain_deg > 0:
+        raise InputError(f"uncertain_deg must be a positive angle in degrees, got {uncertain_deg!r}")
+    anchor = anchor_wanted(method_traits(solver).wants_anchor, specular_anchor, options, directions, near)
+    return SolvePlan(method, solver, directions, near, options, anchor, specular_anchor is True, frame_gains,
+                     uncertain_deg, given, specular_anchor)
+
+
+def check_plan_selection(plan, gather, pixels):
+    """``plan`` with the light layout's choice of the darkest-fraction rule checked on the images.
+
+    :func:`pipeline.photometric.selection.resolve_selection` takes the paper's rule for a wide
+    light set (a percentile of the layout). That rule needs the lights it keeps to determine
+    each normal; a few lights of which two stray push the percentile past the limit while the
+    rest sit in a narrow cone, and the 3-4 darkest of 10 then sit on one side (DiLiGenT ball's
+    lights 7, 12, 41, 42, 61, 68, 69, 86, 87, 94: 8.3 degrees against Lambert's 5.2). So on a
+    sample of the pixels the noise amplification of the lights it keeps is measured
+    (:func:`pipeline.photometric.selection.darkest_leverage`); over
+    :data:`pipeline.photometric.selection.DARKEST_LEVERAGE_MAX` the robust selection is used,
+    as under a narrow cone. Only the rule the layout chose by default is checked; the verdict
+    is ``options["selection_check"]``.
+    """
+    if plan.given is None or plan.method == "lambert" or plan.options.get("selection") != "darkest" or \
+            plan.given.get("selection", "auto") != "auto" or plan.given.get("t_low") is not None:
+        return plan
+    rng = np.random.default_rng(0)
+    sample = np.sort(rng.choice(pixels, min(SURROUND_SAMPLE, len(pixels)), replace=False))
+    obs, valid, lights = gather(sample)
+    leverage = darkest_leverage(obs, valid, lights, plan.options)
+    check = {"layout": "wide", "darkest_leverage": round(leverage, 3), "limit": DARKEST_LEVERAGE_MAX}
+    if not leverage > DARKEST_LEVERAGE_MAX:
+        check["verdict"] = "darkest"
+        return replace(plan, options=dict(plan.options, selection_check=check))
+    check["verdict"] = "robust: the darkest observations do not determine the normals"
+    options = resolve_selection(plan.lights, dict(plan.given, selection="robust"))
+    for key in ("specular_anchor", "frame_gains", "uncertain_deg"):   # the plan's own, not the method's
+        options.pop(key, None)
+    anchor = anchor_wanted(method_traits(plan.solver).wants_anchor, plan.specular_anchor, options, plan.lights,
+                           plan.near)
+    return replace(plan, options=dict(options, selection_check=check), anchor=anchor)
 
 
 def check_plan_frames(plan, gather, pixels):
@@ -196,6 +252,7 @@ def check_plan_frames(plan, gather, pixels):
     # near lights: an error of the object's depth changes each frame's falloff at every pixel alike,
     # which the check would read as gains (measured: 8 of 16 frames "rescaled" by 0.74 on a plane
     # 30 % nearer than the spheres'); their gains are checked only when asked for
+    plan = check_plan_selection(plan, gather, pixels)
     mode = False if plan.near is not None and plan.frame_gains == "auto" else plan.frame_gains
     # unchecked, no sample is gathered (near lights' per-pixel directions cost; the near-depth
     # search solves many times)
@@ -310,18 +367,30 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         options.update(info)
     else:
         out, shared = solve(plan.lights)[0]
-    return result_from_maps(out, mask, method, options, shared, seconds=time.perf_counter() - start)
+    return result_from_maps(out, mask, method, options, shared, seconds=time.perf_counter() - start, lights=k,
+                            uncertain_deg=plan.uncertain_deg)
 
 
-def result_from_maps(maps, mask, method, options, shared, seconds=0.0):
+def result_from_maps(maps, mask, method, options, shared, seconds=0.0, *, lights, uncertain_deg=UNCERTAIN_DEG):
     """The :class:`PhotometricResult` of filled maps and a method's shared context.
 
     ``shared`` holds the context's ``shape_paper`` and ``shape_check``: the check is reported in
     ``options["shape_check"]``, and after its fallback the options say that the shared shape was
     not used. ``options["outline_check"]`` is :func:`pipeline.photometric.outline.outline_check`
-    of the normals.
+    of the normals. ``lights`` (the number solved with) decides whether the uncertainty map can
+    be estimated; ``options["uncertainty"]`` holds its summary, or why there is none. An ``ok``
+    pixel whose expected error is over ``uncertain_deg`` degrees is marked ``uncertain`` (its
+    normal is kept: integration and the mesh still use it).
     """
     options = dict(options, outline_check=outline_check(maps["normals"], mask))
+    leverage = maps.get("leverage")
+    uncertainty, reason = uncertainty_map(maps["normals"], maps["status"], maps["residual"], leverage, mask,
+                                          lights, maps["used"])
+    options["uncertainty"] = reason or uncertainty_summary(uncertainty, mask, uncertain_deg)
+    if uncertainty is not None:
+        with np.errstate(invalid="ignore"):
+            over = (maps["status"] == STATUS["ok"]) & (uncertainty > uncertain_deg)
+        maps = dict(maps, status=np.where(over, np.uint8(STATUS["uncertain"]), maps["status"]))
     if shared.get("shape_check") is not None:
         options["shape_check"] = shared["shape_check"]
         if "fallback" in shared["shape_check"]:
@@ -329,7 +398,7 @@ def result_from_maps(maps, mask, method, options, shared, seconds=0.0):
     return PhotometricResult(
         normals=maps["normals"], mask=mask, status=maps["status"], albedo=maps["albedo"], params=maps["params"],
         residual=maps["residual"], used=maps["used"], method=method, options=options, seconds=seconds,
-        shared_shape=shared.get("shape_paper"), lit=maps["lit"])
+        shared_shape=shared.get("shape_paper"), lit=maps["lit"], leverage=leverage, uncertainty=uncertainty)
 
 
 def _anchored(solve, lights, insist=False, probe=None):

@@ -3,7 +3,7 @@
 import numpy as np
 
 __all__ = ["lambert_weighted", "outer_table", "solve3", "inverse3", "ill_conditioned", "facing_away",
-           "ILL_CONDITIONED"]
+           "normal_leverage", "ILL_CONDITIONED"]
 
 #: the weakest direction of a pixel's selected lights, relative to the strongest (eigenvalues of
 #: sum_k w l l^T), below which its normal is not determined (:func:`ill_conditioned`)
@@ -100,3 +100,59 @@ def facing_away(b):
     """Pixels (N,) bool whose b (N, 3) does not face the camera (n_z <= 0, or not finite): an
     orthographic camera cannot see such a surface, so no observation supports it."""
     return ~(np.isfinite(b).all(axis=1) & (b[:, 2] > 0))
+
+
+#: the entries (xx, yy, zz, xy, xz, yz) of a symmetric 3 x 3 matrix
+_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+
+
+def normal_leverage(b, weights, lights):
+    """How much noise in the observations turns each pixel's normal: the linearised angular
+    standard deviation of a Lambertian fit on the pixel's used observations, per unit of noise
+    relative to the albedo.
+
+    For b = rho n fitted by least squares on the lights l_k (rows of M = sum_k l_k l_k^T), the
+    covariance of b is sigma^2 M^-1; its part across the normal, over rho^2, is the normal's
+    angular variance. So the angle's standard deviation in radians is the residual relative to
+    the albedo times ``sqrt(trace(M^-1) - n^T M^-1 n)``. It grows as the used lights close in
+    on a plane and as they get fewer.
+
+    Parameters
+    ----------
+    b : ndarray (N, 3)
+        Each pixel's fitted albedo-scaled normal (NaN or zero where there is none).
+    weights : ndarray (N, K) or None
+        The observations each pixel used (> 0); None: every one.
+    lights : ndarray (K, 3) or (N, K, 3)
+        Unit light directions.
+
+    Returns
+    -------
+    ndarray (N,) float32
+        Radians per unit relative noise; NaN where there is no normal or the used lights
+        determine none.
+    """
+    n_px = len(b)
+    used = np.ones((n_px, lights.shape[-2])) if weights is None else (np.asarray(weights) > 0).astype(np.float64)
+    if lights.ndim == 2:
+        # the six distinct entries of each pixel's M in one product: (N, K) @ (K, 6)
+        pairs = np.stack([lights[:, i] * lights[:, j] for i, j in _PAIRS], axis=1)
+        m = used @ pairs
+    else:
+        m = np.stack([np.einsum("nk,nk->n", used, lights[:, :, i] * lights[:, :, j]) for i, j in _PAIRS], axis=1)
+    xx, yy, zz, xy, xz, yz = m.T
+    # the adjugate of the symmetric 3 x 3 M, entry by entry (numpy's batched inverse costs
+    # microseconds per pixel, as much as the fit)
+    a_xx, a_yy, a_zz = yy * zz - yz * yz, xx * zz - xz * xz, xx * yy - xy * xy
+    a_xy, a_xz, a_yz = xz * yz - xy * zz, xy * yz - xz * yy, xy * xz - xx * yz
+    det = xx * a_xx + xy * a_xy + xz * a_xz
+    trace = xx + yy + zz
+    good = det > 1e-12 * np.maximum(trace, 1e-12) ** 3
+    norm = np.linalg.norm(np.nan_to_num(b), axis=1)
+    good &= norm > 0
+    n = np.nan_to_num(b) / np.where(good, norm, 1.0)[:, None]
+    nx, ny, nz = n.T
+    quad = (a_xx * nx * nx + a_yy * ny * ny + a_zz * nz * nz
+            + 2.0 * (a_xy * nx * ny + a_xz * nx * nz + a_yz * ny * nz))
+    across = (a_xx + a_yy + a_zz - quad) / np.where(good, det, 1.0)
+    return np.where(good, np.sqrt(np.maximum(across, 0.0)), np.nan).astype(np.float32)

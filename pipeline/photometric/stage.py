@@ -3,7 +3,9 @@
 Reads ``linear/<frame>.exr`` and ``linear/<frame>_sat.png`` (decode stage) and
 ``calibration/lights.yaml`` (calibrate stage or an importer); writes ``normals.exr``,
 ``normals.png``, ``mask.png``, ``albedo.exr``, ``brdf.exr``, ``residual.exr``, ``status.png``
-(codes of :data:`pipeline.photometric.STATUS`) and ``status_vis.png``; records the stage.
+(codes of :data:`pipeline.photometric.STATUS`), ``status_vis.png`` and ``uncertainty.exr`` (each
+pixel's expected angular error, :mod:`pipeline.photometric.uncertainty`; not written when the
+run cannot estimate it); records the stage.
 
 The serial stage (:func:`normals_session`) and the tiled one (:mod:`pipeline.photometric.tiles`)
 are the same three steps: :func:`begin_normals` (inputs, staleness, lights), a solve, and
@@ -18,7 +20,7 @@ import numpy as np
 from ..errors import StageError
 from ..imageio import read_image, read_mask, write_image, write_mask, write_normal_png
 from ..lightsio import read_lights_yaml
-from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS
+from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, UNCERTAINTY
 from ..progress import progress as progress_bar
 from ..settings.normals import EstimateOptions, NormalsOptions
 from ..core.stage import Stage
@@ -328,6 +330,7 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     if result.options.get("outline_check"):
         extra["outline_check"] = plain(result.options["outline_check"])
     extra.update(registration_record(registration, run.frames))
+    extra["uncertainty"] = uncertainty_record(result.options.get("uncertainty"))
     transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
     extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer,
                                          registration=extra.get("registration"))
@@ -337,7 +340,7 @@ def record_normals(session, run, result, channels, near_depth=None, registration
 
 #: the solver's options the stage record keeps (after the policy filled them in)
 SELECTION_KEYS = ("selection", "t_low", "t_shadow", "reject_k", "consensus", "scale_floor", "shape_prior",
-                  "shared_shape")
+                  "shared_shape", "selection_check")
 def frame_gains_record(check, frames):
     """The stage record's ``frame_gains`` entry ({} without a check): the check's verdict and
     largest deviation (:mod:`pipeline.photometric.frame_gains`), the rescaled frames by id."""
@@ -390,8 +393,23 @@ def _write_outputs(session, result, channels):
     write_image(session.path(OBSERVATIONS), np.where(mask, result.used, 0).astype(np.uint16), bits=16)
     lit = result.used if result.lit is None else result.lit
     write_image(session.path(LIT_OBSERVATIONS), np.where(mask, lit, 0).astype(np.uint16), bits=16)
-    return [f"normals/{n}" for n in ("normals.exr", "albedo.exr", "residual.exr", "brdf.exr", "normals.png",
-                                      "mask.png", "status.png", "status_vis.png")] + [OBSERVATIONS, LIT_OBSERVATIONS]
+    outputs = [f"normals/{n}" for n in ("normals.exr", "albedo.exr", "residual.exr", "brdf.exr", "normals.png",
+                                         "mask.png", "status.png", "status_vis.png")] + [OBSERVATIONS, LIT_OBSERVATIONS]
+    if result.uncertainty is None:
+        # a map from an earlier run would pass for this one's
+        session.path(UNCERTAINTY).unlink(missing_ok=True)
+        return outputs
+    write_image(session.path(UNCERTAINTY), np.where(mask, result.uncertainty, np.nan).astype(np.float32),
+                channel_names=("uncertainty",))
+    return outputs + [UNCERTAINTY]
+
+
+def uncertainty_record(found):
+    """The stage record's ``uncertainty``: the shares of the pixels expected within 5 degrees and
+    over the threshold, the threshold and the median (rounded), or ``not_estimated`` with why."""
+    if found is None or isinstance(found, str):
+        return {"not_estimated": found or "the method gave no uncertainty"}
+    return {key: round(float(value), 4) if isinstance(value, float) else value for key, value in found.items()}
 
 
 def _albedo_channels(result, channels):

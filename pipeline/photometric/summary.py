@@ -14,11 +14,11 @@ from .frame_gains import UNCALIBRATED_SHARE
 from .methods import share_text
 from .outline import SEEN_WHOLE, mirrored_axes, transposed_axes
 
-__all__ = ["normals_warnings", "normals_summary", "WARN_SHARES"]
+__all__ = ["normals_warnings", "normals_summary", "uncertainty_text", "WARN_SHARES"]
 
 #: shares of the object's pixels above which the summary warns, per status
 WARN_SHARES = {"lambert_fallback": 0.2, "shared_shape": 0.2, "not_converged": 0.05, "too_few": 0.1,
-               "shadowed": 0.1, "ill_posed": 0.0}
+               "shadowed": 0.1, "ill_posed": 0.0, "uncertain": 0.1}
 _WARNINGS = {
     "lambert_fallback": "{share} of pixels fell back to Lambert: too few observations for the biquadratic "
                         "model ({lights} lights)",
@@ -27,6 +27,8 @@ _WARNINGS = {
     "not_converged": "{share} of pixels did not converge (their normal still turned after the last step)",
     "too_few": "{share} of pixels had fewer than 3 usable observations: no normal",
     "shadowed": "{share} of pixels were dark in every frame: no normal",
+    "uncertain": "{share} of pixels are uncertain: their expected angular error is over the threshold "
+                 "(normals/uncertainty.exr, the report's expected-error map); their normals are kept",
     "ill_posed": "{count} pixel(s) have no normal: their observations determine none facing the camera "
                  "(lights too close to coplanar there, or lit only indirectly)",
 }
@@ -170,7 +172,22 @@ def normals_summary(record):
     gains = f"; {len(rescaled)} frame(s) rescaled to the others' brightness" if rescaled else ""
     found = record.get("registration") or {}
     aligned = f"; {len(found['moved'])} moved frame(s) aligned to the others" if found.get("aligned") else ""
-    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{aligned}{flagged}"
+    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{aligned}{flagged}{uncertainty_text(record)}"
+
+
+def uncertainty_text(record):
+    """'; 82 % of pixels expected within 5 degrees, 6 % uncertain (over 20 degrees)', or why the
+    run has no uncertainty map ('' for records of earlier versions, which have neither)."""
+    found = record.get("uncertainty")
+    if not found:
+        return ""
+    if "not_estimated" in found:
+        return f"; uncertainty {found['not_estimated']}"
+    pixels = max(found.get("pixels", 0), 1)
+    within = share_text(round(found["within_5"] * pixels), pixels)
+    over = share_text(round(found["over_threshold"] * pixels), pixels)
+    return (f"; {within} of pixels expected within 5 degrees, {over} uncertain "
+            f"(over {found['threshold_deg']:g} degrees)")
 
 
 def _range_text(anchor):

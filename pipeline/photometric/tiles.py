@@ -300,7 +300,8 @@ def assemble_normals(plan, tile_paths=None):
     shared = {key: plan.context.get(key) for key in SHARED_KEYS}
     saved = plan.scratch(CHANNELS)
     channels = ChannelSums(np.load(saved) if saved.is_file() else None)   # none saved: grey frames
-    result = result_from_maps(out, mask, plan.solve.method, options, shared)
+    result = result_from_maps(out, mask, plan.solve.method, options, shared, lights=len(plan.solve.lights),
+                              uncertain_deg=plan.solve.uncertain_deg)
     found = _registration(plan, result)
     if found.get("align"):   # frames to align and solve again: a whole-image solve, as the serial stage's
         shutil.rmtree(plan.scratch(), ignore_errors=True)

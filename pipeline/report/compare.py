@@ -25,7 +25,8 @@ __all__ = ["compare_sessions", "prepare_compare_folder", "MARK", "ROWS"]
 #: the file that marks a folder as a comparison (so that a rerun may overwrite it)
 MARK = ".psrig-compare"
 #: map rows in page order: (figure key, heading)
-ROWS = (("normals", "normals"), ("truth", "true normals"), ("error", "angular error"), ("status", "status"),
+ROWS = (("normals", "normals"), ("truth", "true normals"), ("error", "angular error"),
+        ("uncertainty", "expected error"), ("status", "status"),
         ("albedo", "albedo"), ("residual", "residual"), ("depth", "depth"), ("shaded", "depth, shaded"))
 
 

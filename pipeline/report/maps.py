@@ -5,7 +5,8 @@ fixes the colour scales, for one session or for several compared side by side (t
 for all of them); :func:`map_figures` writes the pictures and names each one's scale, so that
 the page can put a colour bar beside every false-colour map.
 
-Fixed scales: angular error 0 .. 30 degrees (``max_deg``), residual 0 .. 0.1 of the albedo.
+Fixed scales: angular error and expected angular error (the normals stage's uncertainty map)
+0 .. 30 degrees (``max_deg``, the same scale so that they compare), residual 0 .. 0.1 of the albedo.
 Depth has no natural scale (it is known up to an offset, or a scale under perspective): its
 scale is the 1st .. 99th percentile of the heights, over all the sessions compared, in the
 integration's unit. Albedo is a tone-mapped picture (no false colour), white stated.
@@ -18,7 +19,8 @@ import numpy as np
 
 from ..evaluate import ERROR_TOP_DEG, normal_errors
 from ..imageio import read_image, read_image_native, read_mask
-from ..paths import ALBEDO, DEPTH, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, RESIDUAL, SHADED, STATUS_MAP
+from ..paths import (ALBEDO, DEPTH, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, RESIDUAL, SHADED, STATUS_MAP,
+                     UNCERTAINTY)
 from ..photometric import share_text
 from .images import Scale, colour_bar, colour_map, normals_rgb, robust_max, status_legend, status_rgb, tone_map
 
@@ -51,6 +53,7 @@ class SessionMaps:
     residual: np.ndarray = None
     status: np.ndarray = None
     errors: np.ndarray = None
+    uncertainty: np.ndarray = None
     observations: np.ndarray = None
     lit: np.ndarray = None
     depth: np.ndarray = None
@@ -74,6 +77,8 @@ def read_maps(session):
     if truth is not None and truth.is_file() and truth.suffix.lower() == ".exr":
         maps.truth = read_image(truth)[:, :, :3]
     maps.albedo = _read(session, ALBEDO)
+    uncertainty = _read(session, UNCERTAINTY)   # none from earlier versions, or too few lights
+    maps.uncertainty = None if uncertainty is None else uncertainty[:, :, 0]
     residual = _read(session, RESIDUAL)
     maps.residual = None if residual is None else np.abs(residual).mean(axis=2)
     status = _read(session, STATUS_MAP, read_image_native)
@@ -103,6 +108,7 @@ def choose_scales(all_maps, max_deg=ERROR_TOP_DEG):
     albedos = [m.albedo[m.mask] if m.mask is not None and m.albedo.shape[:2] == m.mask.shape else m.albedo
                for m in all_maps if m.albedo is not None]
     return {"error": Scale("error", 0.0, float(max_deg), "deg", "viridis"),
+            "uncertainty": Scale("uncertainty", 0.0, float(max_deg), "deg", "viridis"),
             "residual": Scale("residual", 0.0, RESIDUAL_TOP, "of albedo", "magma"),
             "depth": Scale("depth", float(low), float(high), " / ".join(sorted(units)), "cividis"),
             "albedo_white": robust_max(np.concatenate([a.ravel() for a in albedos])) if albedos else 1.0}
@@ -141,6 +147,12 @@ def map_figures(maps, scales, folder, write, names=None, colours=None):
         figures.append(Figure(write(f"{folder}/error.png", colour_map(maps.errors, scale)),
                               f"angular error; {_above(maps.errors, scale):.1%} of pixels above {scale.top:g} deg",
                               scale, key="error"))
+    if maps.uncertainty is not None:
+        scale = scales["uncertainty"]
+        figures.append(Figure(write(f"{folder}/uncertainty.png", colour_map(maps.uncertainty, scale)),
+                              f"expected angular error (uncertainty, without ground truth); "
+                              f"{_above(maps.uncertainty, scale):.1%} of pixels above {scale.top:g} deg",
+                              scale, key="uncertainty"))
     if maps.status is not None and names is not None:
         rows = status_legend(maps.status, names, colours)
         total = sum(row[3] for row in rows)

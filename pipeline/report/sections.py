@@ -7,6 +7,7 @@ written through ``write(rel, rgb)``. :func:`session_sections` assembles them.
 from ..evaluate import lights_imported
 from ..lightsio import read_lights, read_lights_yaml
 from ..paths import LIGHTS
+from ..photometric.uncertainty import agreement_text
 from ..session import STAGES
 from .charts import error_by_observations, error_histogram
 from .details import flatten, format_value, record_rows, stage_warnings
@@ -65,7 +66,7 @@ def settings_cell(params):
 OUTCOMES = {
     "decode": ("compression", "subtracted.kind"),
     "calibrate": ("light_model", "flagged"),
-    "normals": ("selection", "shared_shape_check", "specular_anchor", "lights_left_out"),
+    "normals": ("selection", "shared_shape_check", "specular_anchor", "lights_left_out", "uncertainty"),
     "integrate": ("mesh.unit", "mesh.faces_left_out_at_jumps"),
 }
 
@@ -102,7 +103,8 @@ def _value(v, key=""):
 def scores_section(scores):
     parts = []
     if "normals" in scores:
-        rows = [[escape(k), _value(v, k)] for k, v in scores["normals"].items() if k != "error_map"]
+        rows = [[escape(k), _value(v, k) if k != "uncertainty" else escape(agreement_text(v))]
+                for k, v in scores["normals"].items() if k != "error_map"]
         parts.append("<h3>Normals against ground truth (degrees)</h3>" + table(["metric", "value"], rows))
     if "lights" in scores:
         lt = scores["lights"]

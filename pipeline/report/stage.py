@@ -22,7 +22,7 @@ from ..errors import StageError
 from ..evaluate import ERROR_TOP_DEG
 from ..imageio import read_image, write_image
 from ..paths import (ALBEDO, DEPTH, LIGHTS, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, REPORT,
-                     RESIDUAL, SHADED, STATUS_MAP)
+                     RESIDUAL, SHADED, STATUS_MAP, UNCERTAINTY)
 from ..session import STAGES, now_iso
 from ..settings.report import ReportOptions
 from ..core.stage import Stage
@@ -37,7 +37,8 @@ INDEX = REPORT
 THUMB_SIDE = 160
 #: the page's layout version: a report of an older layout is rebuilt
 LAYOUT = 2
-_MAPS = (NORMALS, NORMALS_MASK, ALBEDO, RESIDUAL, STATUS_MAP, OBSERVATIONS, LIT_OBSERVATIONS, DEPTH, SHADED)
+_MAPS = (NORMALS, NORMALS_MASK, ALBEDO, RESIDUAL, UNCERTAINTY, STATUS_MAP, OBSERVATIONS, LIT_OBSERVATIONS, DEPTH,
+         SHADED)
 
 
 def _sources(session):

@@ -14,7 +14,7 @@ from ..errors import InputError
 from ..core.options import Options, option
 
 __all__ = ["SelectionOptions", "EstimateOptions", "BiquadraticOptions", "AlternationOptions", "NormalsOptions",
-           "T_SHADOW", "WIDE_T_SHADOW", "WIDE_T_LOW", "WIDE_SPREAD_DEG", "REJECT_K", "SHAPE_PRIOR", "MAX_ITER", "TOL_DEG", "CONSENSUS",
+           "T_SHADOW", "WIDE_T_SHADOW", "WIDE_T_LOW", "WIDE_SPREAD_DEG", "REJECT_K", "SHAPE_PRIOR", "MAX_ITER", "TOL_DEG", "CONSENSUS", "UNCERTAIN_DEG",
            "SCALE_FLOOR",
            "parse_fraction"]
 
@@ -35,6 +35,9 @@ REJECT_K = 2.5
 SCALE_FLOOR = 0.01
 #: triplets of lights the high-breakdown start of :func:`pipeline.photometric.selection.select_robust` tries per pixel
 CONSENSUS = 48
+#: a pixel whose expected angular error (degrees) is over this is 'uncertain', not 'ok'
+#: (:mod:`pipeline.photometric.uncertainty`; docs/photometric-stereo.md, "Uncertainty")
+UNCERTAIN_DEG = 20.0
 #: weight of the pull toward the object's shared reflectance shape
 SHAPE_PRIOR = 0.01
 #: a pixel's fit stops when its Gauss-Newton step would turn the normal by less than this (degrees)
@@ -89,6 +92,9 @@ class EstimateOptions(Options):
     specular_anchor: object = option(
         "auto", "correct the lights' polar angles where sharp specular peaks show the normals' slant to be off "
                 "(auto: the biquadratic under a narrow light cone)", cli=SOLVER_SWITCH)
+    uncertain_deg: float = option(UNCERTAIN_DEG, "expected angular error (degrees) above which a pixel's status is "
+                                                 "'uncertain' instead of 'ok' (its normal is kept)", kind=float,
+                                  above=0.0, metavar="DEG")
     frame_gains: object = option(
         "auto", "check each frame's brightness against its light's intensity, from the images: auto rescales "
                 "the frames more than 16 % off the others, on rescales every frame by its measured gain, off "

@@ -41,7 +41,7 @@ def test_a_frame_too_big_for_this_machine_is_refused_with_the_numbers(tmp_path, 
     path = tmp_path / "frame.dng"
     path.write_bytes(write_dng(np.full((64, 96), 2000, np.uint16)))
     assert frame_size(path) == (64, 96)
-    monkeypatch.setattr(decode_raw_module, "_memory", lambda: 64 * 96 * 20)
+    monkeypatch.setattr(decode_raw_module, "physical_memory", lambda: 64 * 96 * 20)
     with pytest.raises(ImageFileError, match=r"frame.dng: a 96 x 64 raw frame needs about .* GiB to decode"):
         frame_size(path)
 
@@ -105,7 +105,7 @@ def test_an_image_frame_too_big_for_this_machine_is_refused_with_the_numbers(tmp
     path = tmp_path / "frame.png"
     path.write_bytes(zero_png(300, 200))
     assert frame_size(path) == (200, 300)
-    monkeypatch.setattr(decode_raw_module, "_memory", lambda: 300 * 200 * 20)
+    monkeypatch.setattr(decode_raw_module, "physical_memory", lambda: 300 * 200 * 20)
     path.write_bytes(zero_png(300, 200, rows_per_block=50))   # another file: not the cached answer
     with pytest.raises(ImageFileError, match=r"frame.png: a 300 x 200 image \(0.1 MP\) needs about .* GiB to "
                                              r"decode, more than half of this machine's"):

@@ -114,3 +114,33 @@ def test_import_diligent_bad_folder(tmp_path):
     with pytest.raises(InputError, match="filenames.txt"):
         import_diligent(tmp_path / "fake", tmp_path / "s")
     assert not (tmp_path / "s").exists()
+
+
+def test_diligent_load_images_returns_decode_saturation(tmp_path):
+    # the Python loader must see what psrig decode sees: observations at the 16-bit maximum (any
+    # channel) are saturated, and the values are decode's linear ones over the intensities
+    from pipeline.decode.image import decode_image
+    from pipeline.importers import read_diligent
+
+    folder = tmp_path / "toyPNG"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    names = []
+    for i in range(4):
+        pixels = rng.integers(1000, 60000, (6, 5, 3), dtype=np.uint16)
+        if i == 2:
+            pixels[3, 1, 0] = 65535
+        names.append(f"{i:03d}.png")
+        write_image(folder / names[-1], pixels)
+    (folder / "filenames.txt").write_text("\n".join(names) + "\n")
+    np.savetxt(folder / "light_directions.txt", [[0, 0, 1], [0.5, 0, 0.87], [0, 0.5, 0.87], [-0.5, 0, 0.87]])
+    np.savetxt(folder / "light_intensities.txt", [[1, 1, 1], [2, 2, 2], [0.5, 1, 2], [1, 1, 1]])
+    write_mask(folder / "mask.png", np.ones((6, 5), bool))
+    obj = read_diligent(folder)
+    images, valid = obj.load_images()
+    assert images.shape == valid.shape == (4, 6, 5)
+    assert np.argwhere(~valid).tolist() == [[2, 3, 1]]
+    rgb, _, _ = decode_image(folder / names[2])
+    np.testing.assert_allclose(images[2], (rgb / np.float32([0.5, 1, 2])).mean(axis=2), rtol=1e-6)
+    colour, colour_valid = obj.load_images(grey=False)
+    assert colour.shape == (4, 6, 5, 3) and (colour_valid == valid).all()

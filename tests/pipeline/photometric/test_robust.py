@@ -98,7 +98,7 @@ def test_real_five_and_six_light_subsets_beat_lambert():
     from pipeline.importers import read_diligent
 
     obj = read_diligent(CAT)
-    images = obj.load_images()
+    images = obj.load_images()[0]
     for count, seed in ((5, 5100), (5, 5101), (6, 6100), (6, 6101)):
         chosen = np.sort(np.random.default_rng(seed).choice(len(images), count, replace=False))
         default = estimate_normals(images[chosen], obj.directions[chosen], obj.mask)
