@@ -35,7 +35,9 @@ import os
 import shutil
 import time
 
+from .autotransfer import decide_transfer
 from .record import assumed
+from .transfer import undeclared_8bit
 from .frame import check_options, decode_frame, frame_size
 from .merge import decoded_inputs, lit_inputs, merge_task, unmergeable
 from .pool import prepare_pool, run_tasks, start_pool
@@ -126,11 +128,29 @@ def _merge_reusable(session, previous, params, group, digest):
     return entry.get("inputs_sha256") == digest and _outputs_intact(session, previous, group.id)
 
 
-def _task(session, frame, options, size, reference=None):
+def _task(session, frame, options, size, reference=None, decided=None):
     return {"id": frame["id"], "source": str(session.path(frame["file"])),
             "linear": str(session.linear_path(frame)),
             "saturation": str(session.saturation_path(frame)),
-            "options": options, "size": size, "reference": reference}
+            "options": options, "size": size, "reference": reference, "decided": _decision(decided)}
+
+
+def _decision(decided):
+    """What a decoded frame depends on of a transfer decision (a record's or a new one)."""
+    return {"transfer": decided["transfer"], "why": decided["why"]} if decided else None
+
+
+def _decide_transfer(session, frames, params, failed):
+    """``--gamma auto`` for 8-bit image frames that declare no transfer: decided from the
+    object frames (:mod:`.autotransfer`); None when the option names a transfer, when no
+    object frame is such a file, or when there are too few of them to tell."""
+    if params["gamma"] != "auto":
+        return None
+    objects = [f for f in frames if f["kind"] == "object" and f["id"] not in failed]
+    paths = [session.path(f["file"]) for f in objects]
+    if not paths or not undeclared_8bit(paths[0]):
+        return None
+    return decide_transfer([p for p in paths if undeclared_8bit(p)])
 
 
 class _Run:
@@ -143,9 +163,13 @@ class _Run:
     when the run is interrupted by Ctrl-C or an error.
     """
 
-    def __init__(self, session, params, inputs, sizes, failed, previous, jobs, show):
+    def __init__(self, session, params, inputs, sizes, failed, previous, jobs, show, decided=None):
         self.session, self.params, self.inputs, self.sizes = session, params, inputs, sizes
-        self.failed, self.previous, self.jobs, self.show = failed, previous, jobs, show
+        self.failed, self.jobs, self.show = failed, jobs, show
+        self.decided = decided  # what --gamma auto decided from the data (autotransfer), or None
+        if previous and _decision(previous.get("transfer_decision")) != _decision(decided):
+            previous = None  # frames decoded under another decided transfer are not reusable
+        self.previous = previous
         self.frames = session.frames()
         self.files = {f["id"]: f["file"] for f in self.frames}
         self.reference_shutter = reference_shutter(self.frames)  # what every merge is scaled to
@@ -174,7 +198,7 @@ class _Run:
                 self._keep_outputs(frame["id"])
             else:
                 self.tasks.append(_task(self.session, frame, dict(self.params),
-                                        self.sizes[frame["id"]], reference))
+                                        self.sizes[frame["id"]], reference, self.decided))
 
     def queue_merge(self, group, digest, members):
         """Plan the merge of a bracket ``group`` unless the previous run's still holds
@@ -184,8 +208,9 @@ class _Run:
             self._keep_outputs(group.id)
             return
         self.merge_inputs[group.id] = digest
-        self.tasks.append(merge_task(self.session, group, members(), self.reference_shutter,
-                                     dict(self.params), self.sizes[group.frames[0]["id"]]))
+        task = merge_task(self.session, group, members(), self.reference_shutter,
+                          dict(self.params), self.sizes[group.frames[0]["id"]])
+        self.tasks.append({**task, "decided": _decision(self.decided)})
 
     def fail_merge(self, group, problem):
         """``group`` cannot be merged: say why, and remove an earlier run's merge of it (of
@@ -281,7 +306,10 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
         ``frames_not_raw``, per-frame ``frames`` info, ``merged`` ({bracket group: info},
         bracketed sessions only), ``seconds``, and what was assumed: ``transfer`` ({transfer and why: frame ids} of
         image files), ``postprocessed`` ({sensor: frame ids} of raw files the mosaic path
-        cannot decode), ``linear_bytes`` and ``compression`` ({'zip' or 'none': count}).
+        cannot decode), ``linear_bytes`` and ``compression`` ({'zip' or 'none': count});
+        ``transfer_decision`` when ``gamma='auto'`` decided the transfer of 8-bit files
+        that declare none from the object frames (:func:`.autotransfer.decide_transfer`:
+        chosen transfer, whether a guess, the candidates' rank-3 residuals, the message).
     """
     start = time.perf_counter()
     params = check_options(method, channels, binning, gamma, compression, half)
@@ -305,8 +333,9 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     if pooled:
         prepare_pool()  # ... or while the headers are read (no-op when already running)
     sizes = _sizes(session, frames, binning, failed)
+    decided = _decide_transfer(session, frames, params, failed)
     run = _Run(session, params, inputs, sizes, failed, None if force else session.stage("decode"),
-               jobs, progress)
+               jobs, progress, decided)
     run.started = start
     scratch = session.path(DECODE_SCRATCH)
     try:
@@ -424,6 +453,8 @@ def _record(session, frames, run, seconds, status=None):
     subtracted = run.subtracted
     status = status or ("ok" if not run.failed else ("partial" if done else "failed"))
     extra = {"merged": merged} if merged else {}
+    if run.decided:
+        extra["transfer_decision"] = run.decided
     warnings = [w for info in merged.values() for w in info.get("warnings") or []]
     if warnings:  # where psrig run and the report look for them
         extra["warnings"] = warnings
