@@ -66,22 +66,26 @@ def _decode(session, options, force, jobs):
 
 
 def _calibrate(session, options, force, jobs):
+    from .lightsio import exclusion_note
+
+    # lights left out by hand (calibration/exclude.yaml) are said on every run, ran or not
+    by_hand = exclusion_note(session)
     if options.get("from_session"):   # one sphere session's calibration for this one
         from calibration import calibrate_session
 
         calibrate_session(session, force=force, echo=lambda line: None, **options)
-        return f"lights from {options['from_session']}"
+        return "; ".join(filter(None, [f"lights from {options['from_session']}", by_hand]))
     if not session.frames("sphere"):
         from calibration import lights_without_spheres
 
-        return lights_without_spheres(session)
+        return "; ".join(filter(None, [lights_without_spheres(session), by_hand]))
     from calibration import calibrate_session
 
     # what the calibration says (flagged lights) becomes the stage's note; its own "is up to
     # date" line would repeat the runner's
     said = []
     ran = calibrate_session(session, force=force, echo=said.append, **options)
-    return "; ".join(said) if ran is not None else ""
+    return "; ".join(said) if ran is not None else by_hand
 
 
 def _normals(session, options, force, jobs):

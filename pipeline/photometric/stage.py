@@ -17,8 +17,8 @@ import numpy as np
 
 from ..errors import StageError
 from ..imageio import read_image, read_mask, write_image, write_mask, write_normal_png
-from ..lightsio import read_lights_yaml
-from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS
+from ..lightsio import read_exclude, read_lights_yaml
+from ..paths import EXCLUDE, LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS
 from ..progress import progress as progress_bar
 from ..yamlio import plain
 from .estimate import estimate_normals
@@ -85,6 +85,7 @@ class NormalsRun:
     near_depth: bool = True
     mask_rel: str = None
     started: float = field(default_factory=time.time)
+    by_hand: dict = field(default_factory=dict)
 
     def solver_lights(self, shape):
         """The used lights as the solver takes them: directions (K, 3) or PointLights for ``shape``."""
@@ -95,8 +96,11 @@ class NormalsRun:
 
     def extra(self):
         """Stage-record entries of the lights used."""
-        return {"lights_used": len(self.frames), "lights_left_out": sorted(int(k) for k in self.lights.flags),
-                "light_model": self.model}
+        extra = {"lights_used": len(self.frames), "lights_left_out": sorted(int(k) for k in self.lights.flags),
+                 "light_model": self.model}
+        if self.by_hand:
+            extra["lights_left_out_by_hand"] = {str(k): why for k, why in self.by_hand.items()}
+        return extra
 
 
 def _object_frames(session):
@@ -110,7 +114,7 @@ def _object_frames(session):
 
 
 def _inputs(session, frames, mask_rel):
-    rels = [LIGHTS] + ([mask_rel] if mask_rel else [])
+    rels = [LIGHTS] + ([mask_rel] if mask_rel else []) + ([EXCLUDE] if session.path(EXCLUDE).is_file() else [])
     for frame in frames:
         for path in (session.linear_path(frame), session.saturation_path(frame)):
             if not path.is_file():
@@ -157,12 +161,16 @@ def stage_params(method, lights_model, options, near_depth=True, align="auto"):
 
 
 def _read_stage_lights(session, frames):
-    """The session's lights and the object frames whose light is not flagged."""
+    """The session's lights (flags: lights.yaml's and exclude.yaml's), the object frames whose
+    light is not flagged, and {light: why} of those left out by hand (exclude.yaml)."""
     lights = read_lights_yaml(session.path(LIGHTS))
     top = max(f["light"] for f in frames)
     if top >= len(lights):
         raise StageError(f"{session.path(LIGHTS)}: {len(lights)} lights, but frame light index {top} is used")
-    return lights, [f for f in frames if f["light"] not in lights.flags]
+    by_hand = read_exclude(session, len(lights))
+    for index, why in by_hand.items():
+        lights.flags.setdefault(index, f"left out by hand ({EXCLUDE}): {why}")
+    return lights, [f for f in frames if f["light"] not in lights.flags], by_hand
 
 
 def begin_normals(session, *, method="biquadratic", force=False, lights_model="auto", near_depth=True, align="auto",
@@ -179,10 +187,10 @@ def begin_normals(session, *, method="biquadratic", force=False, lights_model="a
     if not force and session.stage_is_current(STAGE, params, inputs):
         return None
     started = time.time()
-    lights, used = _read_stage_lights(session, frames)
+    lights, used, by_hand = _read_stage_lights(session, frames)
     given = {k: v for k, v in options.items() if v is not None}
     return NormalsRun(method, given, params, inputs, used, lights, light_model(lights, lights_model), near_depth,
-                      mask_rel, started)
+                      mask_rel, started, by_hand)
 
 
 class ChannelSums:
