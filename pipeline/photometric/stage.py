@@ -86,6 +86,7 @@ class NormalsRun:
     mask_rel: str = None
     started: float = field(default_factory=time.time)
     by_hand: dict = field(default_factory=dict)
+    mask_info: dict = None
 
     def solver_lights(self, shape):
         """The used lights as the solver takes them: directions (K, 3) or PointLights for ``shape``."""
@@ -100,6 +101,8 @@ class NormalsRun:
                  "light_model": self.model}
         if self.by_hand:
             extra["lights_left_out_by_hand"] = {str(k): why for k, why in self.by_hand.items()}
+        if self.mask_info:
+            extra["mask"] = self.mask_info
         return extra
 
 
@@ -233,17 +236,62 @@ def load_object_stack(session, frames, lights, channels=None):
     return np.stack(images), np.stack(valid)
 
 
+#: without a mask, the object is where the brightest observation exceeds this share of the
+#: object's bright level (the 99.5th percentile of the peaks)
+MASK_LEVEL = 0.05
+#: a mask made from brightness with more parts than this, or more of the frame than
+#: MASK_MOST, is a warning (a lit background or table solved as the object)
+MASK_PARTS = 10
+MASK_MOST = 0.85
+
+
 def object_mask(session, run, images):
     """The session's object mask, or pixels whose brightest observation in ``images`` (K, H, W)
-    exceeds 5 % of the object's bright level."""
+    exceeds :data:`MASK_LEVEL` of the object's bright level; where it came from, its pixels
+    and parts go to ``run.mask_info`` (the record's ``mask``, :func:`mask_info`)."""
     if run.mask_rel:
         mask = read_mask(session.path(run.mask_rel))
         if mask.shape != images.shape[1:]:
             raise StageError(f"{session.path(run.mask_rel)}: mask size {mask.shape} differs from the frames' "
                              f"{images.shape[1:]}")
+        run.mask_info = mask_info(mask, run.mask_rel)
         return mask
     peak = images.max(axis=0)
-    return peak > 0.05 * np.percentile(peak, 99.5)
+    mask = peak > MASK_LEVEL * np.percentile(peak, 99.5)
+    run.mask_info = mask_info(mask)
+    return mask
+
+
+def mask_info(mask, given=None):
+    """Where the object mask (H, W) bool came from, its pixels and parts (8-connected), and a
+    warning when one made from brightness looks like more than an object.
+
+    Returns
+    -------
+    dict
+        ``source`` ('given' or 'brightness'), ``file`` (given) or ``level`` (share of the
+        object's level), ``pixels``, ``parts``, ``share`` (of the frame), ``text`` (the line
+        printed) and, when due, ``warning``.
+    """
+    import cv2
+
+    pixels = int(mask.sum())
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    parts = int(count) - 1
+    largest = int(stats[1:, cv2.CC_STAT_AREA].max()) if parts else 0
+    share = pixels / mask.size
+    counted = f"{pixels:,} pixels in {parts:,} part{'s' * (parts != 1)}"
+    if given:
+        return {"source": "given", "file": given, "pixels": pixels, "parts": parts, "share": round(share, 4),
+                "text": f"mask: {given} (given at import): {counted}"}
+    info = {"source": "brightness", "level": MASK_LEVEL, "pixels": pixels, "parts": parts, "share": round(share, 4),
+            "text": f"mask: none given; made from brightness, {100 * MASK_LEVEL:g} % of the object's level: {counted}"}
+    if parts > MASK_PARTS or share > MASK_MOST:
+        info["warning"] = (f"the mask made from brightness is {parts:,} part{'s' * (parts != 1)} (the largest "
+                           f"{100 * largest / max(pixels, 1):.0f} % of it) covering {100 * share:.0f} % of the "
+                           "frame: it probably holds more than the object (a lit background or table, noise); "
+                           "give an object mask (psrig import images ... --mask FILE)")
+    return info
 
 
 def normals_session(session, *, method="biquadratic", force=False, show_progress=True,
@@ -328,6 +376,8 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
     extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer,
                                          registration=extra.get("registration"))
+    if (run.mask_info or {}).get("warning"):
+        extra["warnings"].append(run.mask_info["warning"])
     return session.record_stage(STAGE, run.params, run.inputs, outputs, seconds=time.time() - run.started,
                                 **extra)
 

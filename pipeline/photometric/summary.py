@@ -9,7 +9,7 @@ normals`` and ``psrig run`` show them. :func:`normals_summary` is the line print
 
 import numpy as np
 
-from ..paths import LIGHTS
+from ..paths import EXCLUDE, LIGHTS
 from .frame_gains import UNCALIBRATED_SHARE
 from .methods import share_text
 from .outline import SEEN_WHOLE, mirrored_axes, transposed_axes
@@ -78,7 +78,7 @@ def _registration_warnings(found, lights):
                 "(psrig normals --align-frames off: only say); capture them again to be sure"]
     why_not = f" (not aligned: {found['not_aligned']})" if found.get("not_aligned") else ""
     return [said + "Their pixels see other points of the surface, which blurs and biases the normals: capture "
-            f"them again, or flag their lights in {LIGHTS} to leave them out{why_not}"]
+            f"them again, or leave their lights out by hand ({EXCLUDE}){why_not}"]
 
 
 def _outline_warnings(check):
@@ -164,13 +164,17 @@ def normals_summary(record):
     anchor = record.get("specular_anchor") or {}
     cone = f"; lights' cone scaled by {anchor['cone_scale']:.3f} (specular anchor{_range_text(anchor)})" \
         if anchor.get("anchor") == "corrected" else ""
-    left_out = record.get("lights_left_out") or []
+    by_hand = record.get("lights_left_out_by_hand") or {}
+    left_out = [k for k in record.get("lights_left_out") or [] if str(k) not in by_hand]
     flagged = f"; lights left out (flagged in {LIGHTS}): {', '.join(map(str, left_out))}" if left_out else ""
+    if by_hand:
+        flagged += f"; lights left out by hand ({EXCLUDE}): {', '.join(by_hand)}"
+    mask = (record.get("mask") or {}).get("text")
     rescaled = (record.get("frame_gains") or {}).get("rescaled") or {}
     gains = f"; {len(rescaled)} frame(s) rescaled to the others' brightness" if rescaled else ""
     found = record.get("registration") or {}
     aligned = f"; {len(found['moved'])} moved frame(s) aligned to the others" if found.get("aligned") else ""
-    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{aligned}{flagged}"
+    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{aligned}{flagged}" + (f"; {mask}" if mask else "")
 
 
 def _range_text(anchor):
