@@ -354,6 +354,9 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
                          **({"flags_by_hand": by_hand} if by_hand else {}))
     if flags:
         echo(f"{len(flags)} flagged light(s): " + "; ".join(f"light {k}: {why}" for k, why in flags.items()))
+    if not result.targets:
+        echo("no matte target in the sphere frames: intensities all 1 (the lights are taken as equally bright; "
+             "a matte white sphere beside the chrome one measures them)")
     if by_hand:
         echo(f"{LIGHTS}: kept {len(by_hand)} flag(s) added by hand (" + "; ".join(
             f"light {k}: {why}" for k, why in by_hand.items()) + f"); calibrate rewrites that file: put them in "

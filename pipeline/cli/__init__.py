@@ -43,7 +43,9 @@ def build_parser():
 def main(argv=None):
     """Entry point of the ``psrig`` console script. Returns the process exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        _unrecognized(parser, args, extra)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
@@ -59,6 +61,32 @@ def main(argv=None):
     except BrokenPipeError:
         return _closed_pipe()
     return int(code or 0)
+
+
+def _subparsers(parser):
+    """The sub-command action of ``parser``, or None."""
+    return next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+
+
+def _unrecognized(parser, args, extra):
+    """Refuse arguments the command does not take with the command's own usage (argparse would
+    show psrig's top-level one), naming the commands that take the first unknown option."""
+    target, path = parser, []
+    while (action := _subparsers(target)) is not None and getattr(args, action.dest, None) in action.choices:
+        path.append(getattr(args, action.dest))
+        target = action.choices[path[-1]]
+    option = next((e.split("=")[0] for e in extra if e.startswith("-")), None)
+    hint = ""
+    if option:
+        owners = []
+        for name, sub in (_subparsers(parser).choices.items() if _subparsers(parser) else ()):
+            inner = _subparsers(sub)
+            for full, leaf in ([(f"{name} {k}", v) for k, v in inner.choices.items()] if inner else [(name, sub)]):
+                if option in leaf._option_string_actions and full != " ".join(path):
+                    owners.append(full)
+        if owners:
+            hint = f" ({option} is an option of psrig {', psrig '.join(owners[:4])}{' ...' if len(owners) > 4 else ''})"
+    target.error(f"unrecognized arguments: {' '.join(extra)}{hint}")
 
 
 def _closed_pipe():

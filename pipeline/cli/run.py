@@ -113,10 +113,26 @@ def run(args):
             for stage in outcome.stages:
                 for warning in stage.warnings:
                     print(f"{outcome.root}: warning: {stage.name}: {warning}", file=sys.stderr)
+        elif not outcome.error and any(s.name == "report" for s in outcome.stages):
+            _print_report_path(outcome)
     failed = [o for o in outcomes if o.error]
     for outcome in failed if not args.json else ():
         print(f"psrig run: error: {outcome.error}", file=sys.stderr)
     return 1 if failed else 0
+
+
+def _print_report_path(outcome):
+    """The report's path after a run's stage lines (the file a person opens next)."""
+    from ..errors import PsrigError
+    from ..paths import REPORT
+    from ..session import Session
+
+    try:
+        path = _output(Session.open(outcome.root), REPORT)
+    except PsrigError:
+        return
+    if path:
+        print(f"{outcome.root}: report: {path}", flush=True)
 
 
 def session_summary(outcome):

@@ -189,7 +189,8 @@ def _page(session, scores, max_deg, write):
     depth_figs = [f for f in figures if f.key in depth_keys]
     if depth_figs or maps.depth is not None:
         view = ""
-        payload = None if maps.depth is None else mesh_payload(maps.depth, maps.normals, maps.albedo,
+        # the 3-D view takes orthographic heights in pixels (depth.exr may be in mm)
+        payload = None if maps.depth is None else mesh_payload(maps.depth / maps.depth_scale, maps.normals, maps.albedo,
                                                                _integration_K(session))
         if payload is not None:
             scripts = write_mesh_view(session.path("report"), "depth", payload)
