@@ -37,7 +37,7 @@ import time
 
 from .autotransfer import decide_transfer
 from .record import assumed
-from .transfer import undeclared_8bit
+from .transfer import describe_transfer, undeclared_8bit
 from .frame import check_options, decode_frame, frame_size
 from .merge import decoded_inputs, lit_inputs, merge_task, unmergeable
 from .pool import prepare_pool, run_tasks, start_pool
@@ -440,6 +440,35 @@ def _note_subtracted(run, lit_kind, by_label):
     run.subtracted[lit_kind] = entry
 
 
+def _kind_of_file(info):
+    """What a decoded frame file was, as the mixed-input warning names it."""
+    if info.get("raw", True):
+        return "camera raw"
+    transfer = f", decoded as {describe_transfer(info['transfer'])}" if "transfer" in info else ""
+    return f"{info.get('bits', '?')}-bit {str(info.get('format', 'image')).upper()}{transfer}"
+
+
+def _mixed_inputs(frames, decoded, named=6):
+    """A warning naming the lit frames of one kind whose files differ from the others' (bit
+    depth, format, transfer): one 8-bit frame among 16-bit ones is decoded on another scale and
+    curve, and the normals stage can only rescale it."""
+    warnings = []
+    for kind in _LIT_KINDS:
+        groups = {}
+        for frame in frames:
+            if frame["kind"] == kind and frame["id"] in decoded:
+                groups.setdefault(_kind_of_file(decoded[frame["id"]]), []).append(frame["id"])
+        if len(groups) < 2:
+            continue
+        usual = max(groups, key=lambda key: len(groups[key]))
+        odd = [(key, ids) for key, ids in groups.items() if key != usual]
+        listed = "; ".join(f"{', '.join(ids[:named])}{f' and {len(ids) - named} more' if len(ids) > named else ''} "
+                           f"{'is' if len(ids) == 1 else 'are'} {key}" for key, ids in odd)
+        warnings.append(f"mixed {kind} frames: {listed}, while the other {len(groups[usual])} are {usual}; "
+                        "frames of one capture should be one kind of file (was a frame replaced or re-exported?)")
+    return warnings
+
+
 def _record(session, frames, run, seconds, status=None):
     done = [f for f in frames if f["id"] in run.infos]
     merged = {group: run.merged[group] for group in sorted(run.merged)}
@@ -456,6 +485,7 @@ def _record(session, frames, run, seconds, status=None):
     if run.decided:
         extra["transfer_decision"] = run.decided
     warnings = [w for info in merged.values() for w in info.get("warnings") or []]
+    warnings += _mixed_inputs(frames, decoded)
     if warnings:  # where psrig run and the report look for them
         extra["warnings"] = warnings
     return session.record_stage(

@@ -107,11 +107,15 @@ def _gain_warnings(frame_gains, lights, transfer=()):
     rescaled = frame_gains.get("rescaled") or {}
     if not rescaled:
         return []
+    # the farthest from 1 first: a frame rescaled by 0.09x must not hide behind "... and 13 more"
+    rescaled = dict(sorted(rescaled.items(), key=lambda item: -abs(np.log(max(item[1], 1e-12)))))
     gamma = _transfer_hint(transfer)
     if frame_gains.get("uncalibrated"):
         low, high = min(rescaled.values()), max(rescaled.values())
+        farthest = ", ".join(f"{name} ({gain:.2f}x)" for name, gain in list(rescaled.items())[:3])
         return [f"{len(rescaled)} of {lights} frames are not as bright as the lights' intensities say "
-                f"({low:.2f}x to {high:.2f}x the others): were the intensities given ({LIGHTS})? The frames "
+                f"({low:.2f}x to {high:.2f}x the others; farthest {farthest}): were the intensities given "
+                f"({LIGHTS})? The frames "
                 "were rescaled to the others, but a brightness that changes steadily across the lights "
                 "looks like a tilt of the whole object: calibrate the intensities, the normals may be off "
                 f"by degrees (the lights' directions were not judged){gamma}"]
