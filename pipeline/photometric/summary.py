@@ -174,11 +174,27 @@ def normals_summary(record):
     if by_hand:
         flagged += f"; lights left out by hand ({EXCLUDE}): {', '.join(by_hand)}"
     mask = (record.get("mask") or {}).get("text")
+    doubt = doubtful(record)
+    lead = f"{record.get('pixels', 0)} pixels, normals doubtful ({doubt}; see the warning); fit status" if doubt \
+        else f"{record.get('pixels', 0)} pixels"
     rescaled = (record.get("frame_gains") or {}).get("rescaled") or {}
     gains = f"; {len(rescaled)} frame(s) rescaled to the others' brightness" if rescaled else ""
     found = record.get("registration") or {}
     aligned = f"; {len(found['moved'])} moved frame(s) aligned to the others" if found.get("aligned") else ""
-    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{aligned}{flagged}" + (f"; {mask}" if mask else "")
+    return f"{lead}: {shares}{cone}{gains}{aligned}{flagged}" + (f"; {mask}" if mask else "")
+
+
+def doubtful(record):
+    """Why a normals record's result as a whole is in doubt although its pixels' fits are fine
+    (the status shares say how each fit went, not whether the lights were right), or ''."""
+    gains = record.get("frame_gains") or {}
+    if gains.get("uncalibrated"):
+        return "the frames' brightness does not follow the lights' intensities: the whole map may be tilted"
+    lights = record.get("lights_used") or 0
+    off = (gains.get("directions") or {}).get("off") or {}
+    if lights and len(off) > UNCALIBRATED_SHARE * lights:
+        return "the lights are not where the light file puts them, by the images"
+    return ""
 
 
 def _range_text(anchor):
