@@ -155,12 +155,14 @@ def session_summary(outcome):
         session = Session.open(outcome.root)
     except PsrigError:
         session = None
+    from ..report.details import settings_used
+
     stages, warnings = [], []
     for stage in outcome.stages:
         record = (session.stage(stage.name) if session else None) or {}
         stages.append({"name": stage.name, "ran": stage.ran, "seconds": round(stage.seconds, 3),
                        "note": stage.note or None, "status": record.get("status"),
-                       "warnings": list(stage.warnings), "settings": record.get("params") or {},
+                       "warnings": list(stage.warnings), "settings": settings_used(stage.name, record),
                        "outputs": list(record.get("outputs") or [])})
         warnings += [f"{stage.name}: {w}" for w in stage.warnings]
     normals = (session.stage("normals") if session else None) or {}

@@ -9,7 +9,7 @@ from ..lightsio import read_lights, read_lights_yaml
 from ..paths import LIGHTS
 from ..session import STAGES
 from .charts import error_by_observations, error_histogram
-from .details import flatten, format_value, record_rows, stage_warnings
+from .details import flatten, format_value, record_rows, settings_used, stage_warnings
 from .html import details, escape, table
 from .lights import hemisphere_svg, light_rows
 
@@ -82,13 +82,17 @@ def stages_table(session):
     for name in STAGES:
         record = session.stage(name)
         if record is None:
-            # the report's own record is written after this page
-            rows.append([name, "this page" if name == "report" else "not run", "", "", "", "", ""])
+            # the report's own record is written after this page; a session without sphere
+            # frames keeps its imported lights (what psrig run calls "up to date (kept)")
+            kept = name == "calibrate" and not session.frames("sphere") and session.path(LIGHTS).is_file()
+            rows.append([name, "this page" if name == "report" else "up to date (kept)" if kept else "not run",
+                         "", "", "", escape(f"no sphere frames: the imported {LIGHTS} is kept") if kept else "",
+                         ""])
             continue
         seconds = record.get("seconds")
         warned = len(record.get("warnings") or [])
         rows.append([name, escape(str(record.get("status", "ok"))), "" if seconds is None else f"{seconds:.2f} s",
-                     escape(str(record.get("finished", ""))), settings_cell(record.get("params")),
+                     escape(str(record.get("finished", ""))), settings_cell(settings_used(name, record)),
                      _outcomes(name, record), f'<span class="flag">{warned}</span>' if warned else "0"])
     return table(["stage", "status", "time", "finished", "settings", "outcome", "warnings"], rows)
 
