@@ -343,6 +343,9 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
     lights = LightSet(directions, intensities, positions=_positions(result), flags={**by_hand, **flags},
                       source=f"chrome sphere calibration ({result.method}); {note}",
                       extra=_extra(result, note))
+    if result.triangulated is not None:
+        # the unit of positions, distance and ray_miss (calibration.sphere.SphereCalibration)
+        lights.extra["position_unit"] = "px" if K is None else "sphere radii"
     write_lights_yaml(session.path(LIGHTS), lights)
     objects = {f["light"]: f for f in session.stage_frames("object")}
     names = [objects[i].get("source", objects[i]["file"].split("/")[-1]) if i in objects else frames[k]["id"]

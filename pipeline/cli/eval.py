@@ -60,7 +60,7 @@ def format_summary(result):
         d = result["depth"]
         article = "an" if d["fit"] == "offset" else "a"
         lines.append(f"depth: mean abs {d['mean_abs']:.3f}, median abs {d['median_abs']:.3f} "
-                     f"(after {article} {d['fit']} fit)")
+                     f"(in the ground truth's unit, after {article} {d['fit']} fit)")
     return "\n".join(lines)
 
 

@@ -103,6 +103,10 @@ def _value(v, key=""):
     return f"{v:.4g}" if isinstance(v, float) else escape(format_value(v))
 
 
+#: depth scores that are lengths, in the ground truth's unit
+_DEPTH_LENGTHS = ("mean_abs", "median_abs", "rms")
+
+
 def scores_section(scores):
     parts = []
     if "normals" in scores:
@@ -116,7 +120,9 @@ def scores_section(scores):
             rows = [[escape(k), _value(v)] for k, v in flatten(lt) if k != "per_light_deg"]
             parts.append("<h3>Light directions against ground truth (degrees)</h3>" + table(["metric", "value"], rows))
     if "depth" in scores:
-        rows = [[escape(k), _value(v)] for k, v in scores["depth"].items()]
+        # the errors are in the ground truth's unit (the estimate is fitted to it)
+        rows = [[escape(k + (" (ground truth's unit)" if k in _DEPTH_LENGTHS else "")), _value(v)]
+                for k, v in scores["depth"].items()]
         parts.append("<h3>Depth against ground truth</h3>" + table(["metric", "value"], rows))
     return '<div class="scores">' + "\n".join(f"<div>{p}</div>" for p in parts) + "</div>"
 

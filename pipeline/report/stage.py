@@ -75,13 +75,20 @@ def _thumbnails(session, write, peak=None):
                 peak["image"] = big if "image" not in peak else np.maximum(peak["image"], big)
             groups.setdefault(frame["kind"], []).append((frame, shrink(image, THUMB_SIDE)))
     out = []
+    whites = {kind: robust_max(np.concatenate([t.ravel() for _, t in items])) for kind, items in groups.items()}
+    lit = next((k for k in ("object", "sphere", "target") if k in whites), None)
     for kind, items in groups.items():
-        white = robust_max(np.concatenate([t.ravel() for _, t in items]))
+        # a dark frame on its own white is amplified noise in false colour: unlit frames are
+        # shown grey on the lit frames' scale, as dark as they are
+        unlit = kind in ("dark", "ambient") and lit is not None
+        white = whites[lit] if unlit else whites[kind]
         figures = []
         for frame, small in items:
-            rel = write(f"report/frames/{frame['id']}.png", tone_map(small, white))
+            shown = small.mean(axis=2, keepdims=True) if unlit else small
+            rel = write(f"report/frames/{frame['id']}.png", tone_map(shown, white))
             light = "" if frame.get("light") is None else f" (light {frame['light']})"
-            figures.append(Figure(rel, f"{frame['id']}{light}"))
+            scale = f", grey, on the {lit} frames' scale" if unlit else ""
+            figures.append(Figure(rel, f"{frame['id']}{light}{scale}"))
         out.append((kind, figures))
     return out
 
