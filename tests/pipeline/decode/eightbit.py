@@ -57,3 +57,25 @@ def write_eightbit_diligent(name, transfer, out, *, lights=slice(None), crop=Non
     np.savetxt(out / "lights.txt", directions[list(chosen)])
     cv2.imwrite(str(out / "mask.png"), mask.astype(np.uint8) * 255)
     return files
+
+
+PSBOX = SHARED_DATA / "psbox"
+
+
+def write_eightbit_psbox(transfer, out):
+    """PSBox's 12 object frames re-encoded: taken as linear (they are cropped from raw files
+    dcraw derendered, by PSBox's README, and auto reads them as linear), scaled so 99.9 % fit,
+    encoded by ``transfer`` and quantised to 8 bits. Writes ``lights.txt`` (PSBox's averaged
+    directions, x y z a line) beside them; returns the frame files."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    files = sorted((PSBOX / "Objects").glob("*.png"))
+    stack = np.stack([cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in files]).astype(np.float32) / 255
+    stack = np.clip(stack / np.percentile(stack, 99.9), 0, 1)
+    written = []
+    for index, frame in enumerate(stack):
+        path = out / f"{index + 1:02d}.png"
+        cv2.imwrite(str(path), np.round(encode_gamma(frame, transfer) * 255).astype(np.uint8))
+        written.append(path)
+    np.savetxt(out / "lights.txt", np.loadtxt(PSBOX / "light_directions.txt").T)
+    return written

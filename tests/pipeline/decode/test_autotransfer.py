@@ -9,7 +9,7 @@ from pipeline.decode.autotransfer import decide
 from pipeline.imageio import read_image
 from pipeline.session import Session
 
-from tests.pipeline.decode.eightbit import DILIGENT, write_eightbit_diligent
+from tests.pipeline.decode.eightbit import DILIGENT, PSBOX, write_eightbit_diligent, write_eightbit_psbox
 
 needs_data = pytest.mark.skipif(not (DILIGENT / "ballPNG").is_dir(), reason="shared DiLiGenT data missing")
 
@@ -69,3 +69,26 @@ def test_auto_normals_match_a_run_given_the_true_transfer(tmp_path, transfer):
     mask = read_image(Session.open(auto).path("normals/mask.png"))[:, :, 0] > 0
     angles = _angles(Session.open(auto).path("normals/normals.exr"), Session.open(given).path("normals/normals.exr"))
     assert mask.any() and angles[mask].mean() < 0.5
+
+
+@pytest.mark.skipif(not (PSBOX / "Objects").is_dir(), reason="shared PSBox data missing")
+@pytest.mark.parametrize("transfer", ["linear", "srgb"])
+def test_auto_on_psbox_frames(tmp_path, capsys, transfer):
+    frames = tmp_path / "frames"
+    write_eightbit_psbox(transfer, frames)
+    session = tmp_path / "s"
+    assert main(["import", "images", str(session), "--object", str(frames / "*.png"),
+                 "--lights", str(frames / "lights.txt")]) == 0
+    assert main(["decode", str(session), "--jobs", "1"]) == 0
+    decision = Session.open(session).stage("decode")["transfer_decision"]
+    assert decision["transfer"] == transfer and decision["frames"] == 12
+    assert decision["message"] in capsys.readouterr().out
+
+
+@pytest.mark.skipif(not (PSBOX / "Objects").is_dir(), reason="shared PSBox data missing")
+def test_psbox_objects_as_shipped_read_as_linear(tmp_path, capsys):
+    session = tmp_path / "s"
+    assert main(["import", "images", str(session), "--object", str(PSBOX / "Objects" / "*.png")]) == 0
+    assert main(["decode", str(session), "--jobs", "1"]) == 0
+    decision = Session.open(session).stage("decode")["transfer_decision"]
+    assert decision["transfer"] == "linear" and not decision["guess"]
