@@ -30,8 +30,10 @@ def register(subparsers):
                         help="2: half size, 2x2 cells averaged without demosaicing")
     parser.add_argument("--gamma", default="auto", type=_gamma,
                         help="transfer function of 8- and 16-bit image frames: auto (default: what "
-                             "each file declares, else sRGB for 8-bit and linear for 16-bit), "
-                             "srgb, linear, or an exponent such as 2.2; printed and recorded")
+                             "each file declares; for 8-bit files that declare none, the transfer "
+                             "under which the object frames best fit a rank-3 (Lambertian) stack, "
+                             "sRGB when none fits clearly better; linear for 16-bit), srgb, linear, "
+                             "or an exponent such as 2.2; printed with the evidence and recorded")
     parser.add_argument("--compression", choices=COMPRESSIONS, default="auto",
                         help="linear/ EXRs: auto (default: lossless ZIP for the frames it shrinks "
                              "to 1/1.8 or less, such as frames from 8/16-bit files), zip, none")

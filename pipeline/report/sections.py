@@ -63,7 +63,7 @@ def settings_cell(params):
 #: per stage, the record entries that say what the stage decided (its rule, its checks'
 #: verdicts), shown beside its settings; every entry is in the stage records below
 OUTCOMES = {
-    "decode": ("compression", "subtracted.kind"),
+    "decode": ("compression", "subtracted.kind", "transfer_decision.message"),
     "calibrate": ("light_model", "flagged"),
     "normals": ("selection", "shared_shape_check", "specular_anchor", "lights_left_out"),
     "integrate": ("mesh.unit", "mesh.faces_left_out_at_jumps"),

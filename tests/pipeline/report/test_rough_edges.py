@@ -3,7 +3,7 @@ lights' labels, one intensity, units, and the dark frame's thumbnail."""
 
 import numpy as np
 
-from pipeline.imageio import read_image, write_image
+from pipeline.imageio import write_image
 from pipeline.lightsio import LightSet
 from pipeline.report.charts import error_by_observations
 from pipeline.report.lights import hemisphere_svg, light_rows
