@@ -73,13 +73,15 @@ def _solve(weights, basis, data):
     return np.linalg.solve(normal, right[..., None])[..., 0]
 
 
-def _rank3_residual(linear, code, keep, transfer, iterations=12):
-    """RMS code-level residual of the best rank-3 fit of ``linear`` (P, F) over ``keep``."""
+def _rank3_residual(linear, code, keep, transfer, offset=0.0, iterations=12):
+    """RMS code-level residual of the best rank-3 fit of ``linear`` (P, F) minus ``offset``
+    (P, 1: the pixel's linearised ambient or dark level) over ``keep``."""
     # weights: squared slope of code against linear value, so the fit minimises code error
     eps = 1e-3
     slope = (encode_gamma(np.clip(linear + eps, 0, 1), transfer)
              - encode_gamma(np.clip(linear - eps, 0, 1), transfer)) / (2 * eps)
     weight = slope.astype(np.float64) ** 2
+    linear = linear - offset
     _, _, vt = np.linalg.svd(np.where(keep, linear, 0.0), full_matrices=False)
     lights = vt[:3].T
     for iteration in range(iterations):
@@ -88,20 +90,23 @@ def _rank3_residual(linear, code, keep, transfer, iterations=12):
         lights = _solve(w.T, normals, linear.T)
         if iteration in (iterations // 3, 2 * iterations // 3):
             # highlights and cast shadows are not rank 3: drop what is far off the fit
-            off = np.abs(encode_gamma(np.clip(normals @ lights.T, 0, 1), transfer) - code)
+            off = np.abs(encode_gamma(np.clip(normals @ lights.T + offset, 0, 1), transfer) - code)
             spread = 1.4826 * np.median(off[keep])
             keep = keep & (off <= 2.5 * spread + 2 / 255)
-    off = encode_gamma(np.clip(normals @ lights.T, 0, 1), transfer) - code
+    off = encode_gamma(np.clip(normals @ lights.T + offset, 0, 1), transfer) - code
     return float(np.sqrt(np.mean(off[keep] ** 2)) * 255)
 
 
-def rank3_scores(codes, *, pixels=SAMPLED_PIXELS, seed=0):
+def rank3_scores(codes, *, reference=None, pixels=SAMPLED_PIXELS, seed=0):
     """Rank-3 residual of each candidate transfer.
 
     Parameters
     ----------
     codes : ndarray (F, N, C) uint8
         The object frames' codes (F lights, N pixels, C channels).
+    reference : ndarray (R, N, C) uint8, optional
+        Ambient (else dark) frames' codes: their mean, linearised by each candidate, is the
+        part of every observation that no light explains (decode subtracts it too).
     pixels : int
         Pixels sampled among the well-lit ones.
 
@@ -132,8 +137,11 @@ def rank3_scores(codes, *, pixels=SAMPLED_PIXELS, seed=0):
     code = (sample.mean(axis=2, dtype=np.float64) / 255.0).T
     scores = {}
     for transfer in CANDIDATES:
-        linear = inverse_gamma_lut(transfer, 256)[sample].mean(axis=2, dtype=np.float64).T
-        scores[transfer] = _rank3_residual(linear, code, keep, transfer)
+        lut = inverse_gamma_lut(transfer, 256)
+        linear = lut[sample].mean(axis=2, dtype=np.float64).T
+        offset = 0.0 if reference is None else \
+            lut[reference[:, chosen]].mean(axis=(0, 2), dtype=np.float64)[:, None]
+        scores[transfer] = _rank3_residual(linear, code, keep, transfer, offset)
     return scores, {"pixels": int(chosen.size), "observations": int(keep.sum())}
 
 
@@ -150,13 +158,16 @@ def decide(scores):
     return "srgb", ratio < MIN_RATIO, ratio, against
 
 
-def decide_transfer(paths):
+def decide_transfer(paths, references=()):
     """Decide the transfer of 8-bit object frames that declare none.
 
     Parameters
     ----------
     paths : list of Path
         The object frames (one per light), :data:`MIN_FRAMES` or more.
+    references : list of Path
+        The ambient (else dark) frames decode subtracts from them, 8-bit files that declare
+        no transfer too (else leave them out).
 
     Returns
     -------
@@ -168,7 +179,8 @@ def decide_transfer(paths):
     """
     if len(paths) < MIN_FRAMES:
         return None
-    scores, used = rank3_scores(read_codes(paths))
+    reference = read_codes(references) if references else None
+    scores, used = rank3_scores(read_codes(paths), reference=reference)
     if scores is None:
         return None
     transfer, guess, ratio, against = decide(scores)

@@ -150,7 +150,12 @@ def _decide_transfer(session, frames, params, failed):
     paths = [session.path(f["file"]) for f in objects]
     if not paths or not undeclared_8bit(paths[0]):
         return None
-    return decide_transfer([p for p in paths if undeclared_8bit(p)])
+    # what decode subtracts from the object frames (ambient, else dark) is in the model too
+    kind = "ambient" if any(f["kind"] == "ambient" for f in frames) else "dark"
+    unlit = [session.path(f["file"]) for f in frames if f["kind"] == kind and f["id"] not in failed
+             and f.get("bracket") is None]
+    unlit = unlit if unlit and all(undeclared_8bit(p) for p in unlit) else []
+    return decide_transfer([p for p in paths if undeclared_8bit(p)], unlit)
 
 
 class _Run:

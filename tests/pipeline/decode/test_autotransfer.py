@@ -92,3 +92,23 @@ def test_psbox_objects_as_shipped_read_as_linear(tmp_path, capsys):
     assert main(["decode", str(session), "--jobs", "1"]) == 0
     decision = Session.open(session).stage("decode")["transfer_decision"]
     assert decision["transfer"] == "linear" and not decision["guess"]
+
+
+@needs_data
+def test_the_ambient_frame_decode_subtracts_is_in_the_model(tmp_path):
+    from pipeline.decode.autotransfer import decide_transfer
+    from pipeline.imageio import write_image as write
+
+    frames = write_eightbit_diligent("ball", "linear", tmp_path / "f", lights=slice(None, None, 3))
+    ambient = tmp_path / "ambient.png"
+    write(ambient, np.full((150, 150, 3), 0.08, np.float32), bits=8)   # PNG without colour metadata
+    session = Session.create(tmp_path / "s")
+    for k, path in enumerate(frames):
+        session.add_frame("object", source=path, light=k, save=False)
+    session.add_frame("ambient", source=ambient, save=False)
+    session.save()
+    assert main(["decode", str(session.root), "--jobs", "1"]) == 0
+    decision = Session.open(session.root).stage("decode")["transfer_decision"]
+    with_ambient = decide_transfer(frames, [ambient])
+    assert decision["transfer"] == "linear" and decision["scores"] == with_ambient["scores"]
+    assert decision["scores"] != decide_transfer(frames)["scores"]
