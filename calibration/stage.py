@@ -14,8 +14,8 @@ from pipeline.gamma import encode_gamma
 from pipeline.errors import ImageFileError, InputError, StageError
 from pipeline.imageio import read_image, read_mask
 from pipeline.session import file_sha256
-from pipeline.lightsio import LightSet, write_lights_yaml, write_lp
-from pipeline.paths import LIGHTS, LIGHTS_LP
+from pipeline.lightsio import LightSet, exclusion_note, read_lights_yaml, write_lights_yaml, write_lp
+from pipeline.paths import EXCLUDE, LIGHTS, LIGHTS_LP
 from pipeline.settings.calibrate import CalibrateOptions
 from pipeline.core.stage import Stage
 
@@ -211,6 +211,23 @@ def _session_sphere_mask(session, circle, sphere_mask, outline):
     return None
 
 
+def _file_flags(session):
+    """{light: why} flagged in the session's lights.yaml as it is now ({} when absent or unreadable)."""
+    try:
+        return read_lights_yaml(session.path(LIGHTS)).flags if session.path(LIGHTS).is_file() else {}
+    except Exception:  # a file broken by hand is rewritten; its flags cannot be kept
+        return {}
+
+
+def _hand_flags(session, count):
+    """Flags added by hand to the lights.yaml the last calibration wrote: those in the file that
+    the calibration did not make (its record's ``flagged``) and that name one of ``count``
+    lights. Calibrate rewrites the file; these are carried into the new one."""
+    record = session.stage("calibrate") or {}
+    own = {int(k) for k in (record.get("flagged") or {})}
+    return {k: v for k, v in _file_flags(session).items() if k not in own and 0 <= k < count}
+
+
 def lights_without_spheres(session):
     """The lights of a session that has no sphere frames, and a note saying which they are.
 
@@ -221,8 +238,10 @@ def lights_without_spheres(session):
     """
     recorded = session.manifest["lights"]
     if recorded.get("source") == "nominal" and recorded.get("directions"):
-        write_lights_yaml(session.path(LIGHTS), LightSet(
-            recorded["directions"], source=f"nominal, uncalibrated: {recorded.get('origin', 'rig')}"))
+        lights = LightSet(recorded["directions"], source=f"nominal, uncalibrated: {recorded.get('origin', 'rig')}")
+        # flags a user wrote into the file stay (the nominal lights carry none of their own)
+        lights.flags = {k: v for k, v in _file_flags(session).items() if k < len(lights)}
+        write_lights_yaml(session.path(LIGHTS), lights)
         return "no sphere frames: the rig's nominal (uncalibrated) lights are used"
     if session.path(LIGHTS).is_file():
         return f"no sphere frames: the imported {LIGHTS} is kept"
@@ -297,6 +316,9 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
         "calibrate", needed + session.stage_frames("object"), ("id", "kind", "light", "file", "source"))}
     if not force and session.stage_is_current("calibrate", params, inputs):
         echo(f"{session.root}: calibrate is up to date")
+        note = exclusion_note(session)
+        if note:
+            echo(note)
         return None
     start = time.perf_counter()
     images, sats = _load(session, frames)
@@ -319,9 +341,13 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
                          f"({result.circle.cx:.1f}, {result.circle.cy:.1f}) r {result.circle.r:.1f} "
                          f"({'; '.join(reasons[:3])}); check the circle or mask, or the sphere frames")
     directions = np.where(np.isfinite(result.directions), result.directions, [0.0, 0.0, 1.0])
-    lights = LightSet(directions, intensities, positions=_positions(result), flags=flags,
+    by_hand = _hand_flags(session, len(directions))
+    lights = LightSet(directions, intensities, positions=_positions(result), flags={**by_hand, **flags},
                       source=f"chrome sphere calibration ({result.method}); {note}",
                       extra=_extra(result, note))
+    if result.triangulated is not None:
+        # the unit of positions, distance and ray_miss (calibration.sphere.SphereCalibration)
+        lights.extra["position_unit"] = "px" if K is None else "sphere radii"
     write_lights_yaml(session.path(LIGHTS), lights)
     objects = {f["light"]: f for f in session.stage_frames("object")}
     names = [objects[i].get("source", objects[i]["file"].split("/")[-1]) if i in objects else frames[k]["id"]
@@ -329,9 +355,20 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
     write_lp(session.path(LIGHTS_LP), names, directions)
     outputs = [LIGHTS, LIGHTS_LP] + _overlays(session, images, result, photo)
     session.record_stage("calibrate", params, inputs, outputs, seconds=time.perf_counter() - start,
-                         flagged=flags, light_model=lights.extra["light_model"])
+                         flagged=flags, light_model=lights.extra["light_model"],
+                         **({"flags_by_hand": by_hand} if by_hand else {}))
     if flags:
         echo(f"{len(flags)} flagged light(s): " + "; ".join(f"light {k}: {why}" for k, why in flags.items()))
+    if not result.targets:
+        echo("no matte target in the sphere frames: intensities all 1 (the lights are taken as equally bright; "
+             "a matte white sphere beside the chrome one measures them)")
+    if by_hand:
+        echo(f"{LIGHTS}: kept {len(by_hand)} flag(s) added by hand (" + "; ".join(
+            f"light {k}: {why}" for k, why in by_hand.items()) + f"); calibrate rewrites that file: put them in "
+             f"{EXCLUDE}, which no stage writes")
+    note = exclusion_note(session)
+    if note:
+        echo(note)
     return result
 
 
@@ -345,18 +382,20 @@ class CalibrateStage(Stage):
              "another session's calibration/lights.yaml (from_session)")
 
     def work(self, session, options, *, force, jobs):
+        # lights left out by hand (calibration/exclude.yaml) are said on every run, ran or not
+        by_hand = exclusion_note(session)
         if options.get("from_session"):   # one sphere session's calibration for this one
             ran = calibrate_session(session, force=force, echo=lambda line: None, **options) is not None
-            return ran, f"lights from {options['from_session']}"
+            return ran, "; ".join(filter(None, [f"lights from {options['from_session']}", by_hand]))
         if not session.frames("sphere"):
             before = session.stage(self.name)
             note = lights_without_spheres(session)
-            return session.stage(self.name) is not before, note
+            return session.stage(self.name) is not before, "; ".join(filter(None, [note, by_hand]))
         # what the calibration says (flagged lights) becomes the stage's note; its own "is up to
         # date" line would repeat the runner's
         said = []
         ran = calibrate_session(session, force=force, echo=said.append, **options) is not None
-        return ran, "; ".join(said) if ran else ""
+        return ran, "; ".join(said) if ran else by_hand
 
     def replay(self, record):
         params = (record or {}).get("params")

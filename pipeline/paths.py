@@ -5,7 +5,7 @@ on where it lies. Paths are POSIX-style and relative to the session folder
 (:meth:`pipeline.session.Session.path` resolves and checks them).
 """
 
-__all__ = ["LIGHTS", "LIGHTS_LP", "OBJECT_MASK", "SPHERE_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "UNCERTAINTY", "STATUS_MAP",
+__all__ = ["LIGHTS", "EXCLUDE", "LIGHTS_LP", "OBJECT_MASK", "SPHERE_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "UNCERTAINTY", "STATUS_MAP",
            "OBSERVATIONS", "LIT_OBSERVATIONS", "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION",
            "REPORT", "TRUTH_LIGHTS", "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK", "DECODE_SCRATCH",
            "TILES_SCRATCH", "SCRATCH", "linear_frame", "saturation_frame"]
@@ -25,6 +25,8 @@ DECODE_SCRATCH = "linear/.decode"
 
 #: calibrate stage (or an importer) -> normals, report, eval: the lights in use
 LIGHTS = "calibration/lights.yaml"
+#: the user -> calibrate (says), normals (leaves out): lights left out by hand; no stage writes it
+EXCLUDE = "calibration/exclude.yaml"
 #: the same lights as an RTI .lp file
 LIGHTS_LP = "calibration/lights.lp"
 #: an object mask given at import

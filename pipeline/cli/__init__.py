@@ -76,25 +76,42 @@ def main(argv=None):
 
 
 def _unknown(parser, args, extra):
-    """An option (or word) the command does not take: its own usage, the word, and the options
-    it does take (a misspelt stage option must not look like a missing one)."""
-    command = _subparser(parser, args.command) if getattr(args, "command", None) else None
-    if command is None:
+    """An option (or word) the command does not take: its own usage (argparse would show psrig's
+    top-level one), the word, the options it does take (a misspelt stage option must not look
+    like a missing one) and the commands that take it (an option given to the wrong command)."""
+    target, path = parser, []
+    while (action := _subparsers(target)) is not None and getattr(args, action.dest, None) in action.choices:
+        path.append(getattr(args, action.dest))
+        target = action.choices[path[-1]]
+    if not path:
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
-    flags = sorted({s for a in command._actions for s in a.option_strings if s.startswith("--")} - {"--help"})
-    command.print_usage(sys.stderr)
-    word = next((e for e in extra if e.startswith("-")), extra[0])
+    command = " ".join(path)
+    word = next((e for e in extra if e.startswith("-")), extra[0]).split("=")[0]
+    flags = sorted({s for a in target._actions for s in a.option_strings if s.startswith("--")} - {"--help"})
+    owners = _owners(parser, word, command) if word.startswith("-") else []
+    hint = f" ({word} is an option of psrig {', psrig '.join(owners[:4])}{' ...' if len(owners) > 4 else ''})" \
+        if owners else ""
+    target.print_usage(sys.stderr)
     what = "option" if word.startswith("-") else "argument"
-    print(f"psrig {args.command}: error: unknown {what} {word.split('=')[0]}; psrig {args.command} takes: "
-          f"{', '.join(flags)}", file=sys.stderr)
+    print(f"psrig {command}: error: unknown {what} {word}{hint}; psrig {command} takes: {', '.join(flags)}",
+          file=sys.stderr)
     return 2
 
 
-def _subparser(parser, name):
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            return action.choices.get(name)
-    return None
+def _owners(parser, option, command):
+    """The commands (and sub-commands) other than ``command`` that take ``option``."""
+    owners = []
+    for name, sub in (_subparsers(parser).choices.items() if _subparsers(parser) else ()):
+        inner = _subparsers(sub)
+        for full, leaf in ([(f"{name} {k}", v) for k, v in inner.choices.items()] if inner else [(name, sub)]):
+            if option in leaf._option_string_actions and full != command:
+                owners.append(full)
+    return owners
+
+
+def _subparsers(parser):
+    """The sub-command action of ``parser``, or None."""
+    return next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
 
 
 class Terminated(KeyboardInterrupt):

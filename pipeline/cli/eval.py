@@ -1,6 +1,7 @@
 """``psrig eval SESSION [--json]``: errors against the session's ground truth."""
 
 import json
+import sys
 
 from .writing import open_session
 __all__ = ["register", "format_summary"]
@@ -28,11 +29,21 @@ def run(args):
     result = evaluate_session(session, max_deg=args.max_deg)
     if args.json:
         print(json.dumps(result, indent=2))
-    elif not result:
-        print(f"eval: {session.root}: nothing to evaluate (no ground truth, or no result for it)")
-    else:
+    elif result:
         print(format_summary(result))
+    if not result:   # a script must not take "nothing evaluated" for a pass
+        print(f"psrig eval: error: {session.root}: nothing to evaluate ({_why_nothing(session)})", file=sys.stderr)
+        return 1
     return 0
+
+
+def _why_nothing(session):
+    """Why a session has nothing to evaluate: no ground truth, or no result for the truth it has."""
+    truth = sorted(k for k in session.manifest["truth"] if k != "mask" and session.truth(k) is not None
+                   and session.truth(k).is_file())
+    if not truth:
+        return "the session has no ground truth; psrig import diligent brings a data set's"
+    return f"ground truth for {', '.join(truth)}, but no result to compare yet; run psrig run {session.root} first"
 
 
 def format_summary(result):
@@ -53,7 +64,7 @@ def format_summary(result):
         d = result["depth"]
         article = "an" if d["fit"] == "offset" else "a"
         lines.append(f"depth: mean abs {d['mean_abs']:.3f}, median abs {d['median_abs']:.3f} "
-                     f"(after {article} {d['fit']} fit)")
+                     f"(in the ground truth's unit, after {article} {d['fit']} fit)")
     return "\n".join(lines)
 
 

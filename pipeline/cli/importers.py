@@ -23,7 +23,8 @@ def register(subparsers):
     dil.add_argument("session", metavar="SESSION", help="session folder to create")
     dil.set_defaults(func=_run_diligent)
     img = sources.add_parser("images", help="image files matched by glob patterns",
-                             usage="psrig import images SESSION --object GLOB [--sphere GLOB] [--outline GLOB] "
+                             usage="psrig import images SESSION --object GLOB [GLOB ...] [--sphere GLOB [GLOB ...]] "
+                                   "[--outline GLOB [GLOB ...]] "
                                    "[--mask FILE] [--lights FILE] [--intensities FILE] [--sphere-mask FILE] "
                                    "[--keep-all]",
                              description="Import image files. Quote the patterns: psrig expands "
@@ -34,8 +35,9 @@ def register(subparsers):
     # the last such option hands back a SESSION it swallowed (_Patterns)
     img.add_argument("session", metavar="SESSION", nargs="?", help="session folder to create")
     img.add_argument("--object", required=True, metavar="GLOB", action=_Patterns, nargs="+",
-                     help="object frames (one quoted pattern): any image OpenImageIO reads or camera raw "
-                          "LibRaw reads")
+                     help="object frames: quoted patterns (each sorted naturally) or file names, taken in "
+                          "the order given (frame i is lit by light i); any image OpenImageIO reads or camera "
+                          "raw LibRaw reads")
     img.add_argument("--sphere", metavar="GLOB", action=_Patterns, nargs="+",
                      help="chrome-sphere frames (same lights)")
     img.add_argument("--outline", metavar="GLOB", action=_Patterns, nargs="+",
@@ -87,18 +89,28 @@ def _session(args):
 
 
 def _pattern(option, values):
-    """The one pattern given to ``option``; several values are refused, said by their kind."""
+    """The pattern given to ``option``, or the list of patterns and files (taken in the order
+    given: frame i is lit by light i). A list of files in the shell's sorted order that natural
+    sorting would reorder (img1 img10 img2) is refused: that is a pattern the shell expanded."""
     if values is None or len(values) == 1:
         return None if values is None else values[0]
     from ..errors import InputError
+    from ..importers import natural_key
 
-    shown = " ".join(values[:3]) + (" ..." if len(values) > 3 else "")
-    if any(char in value for value in values for char in "*?["):
-        raise InputError(f"{option}: {len(values)} patterns ({shown}); give one pattern per option "
-                         f"(e.g. {option} 'img*.png'), or move the frames under one name pattern")
-    raise InputError(f"{option}: {len(values)} files ({shown}), where psrig takes one pattern: if the shell "
-                     f"expanded it, quote it, e.g. {option} 'img*.png', so that psrig expands it (sorting it "
-                     "naturally and skipping masks)")
+    files = [v for v in values if not any(char in v for char in "*?[")]
+    if len(files) == len(values) and values == sorted(values) and values != sorted(values, key=natural_key):
+        shown = " ".join(values[:3]) + (" ..." if len(values) > 3 else "")
+        raise InputError(f"{option}: {len(values)} files ({shown}) in the order a shell sorts them, which puts "
+                         f"{_first_misplaced(values, natural_key)}: if the shell expanded a pattern, quote it, "
+                         f"e.g. {option} 'img*.png', so that psrig expands it (sorting it naturally and skipping "
+                         "masks); if this is the order of the lights, list them in another order or rename them")
+    return list(values)
+
+
+def _first_misplaced(values, key):
+    natural = sorted(values, key=key)
+    index = next(i for i, (a, b) in enumerate(zip(values, natural)) if a != b)
+    return f"{values[index]} before {natural[index]}"
 
 
 def _run_images(args):

@@ -114,10 +114,26 @@ def run(args):
             for stage in outcome.stages:
                 for warning in stage.warnings:
                     print(f"{outcome.root}: warning: {stage.name}: {warning}", file=sys.stderr)
+        elif not outcome.error and any(s.name == "report" for s in outcome.stages):
+            _print_report_path(outcome)
     failed = [o for o in outcomes if o.error]
     for outcome in failed if not args.json else ():
         print(f"psrig run: error: {outcome.error}", file=sys.stderr)
     return 1 if failed else 0
+
+
+def _print_report_path(outcome):
+    """The report's path after a run's stage lines (the file a person opens next)."""
+    from ..errors import PsrigError
+    from ..paths import REPORT
+    from ..session import Session
+
+    try:
+        path = _output(Session.open(outcome.root), REPORT)
+    except PsrigError:
+        return
+    if path:
+        print(f"{outcome.root}: report: {path}", flush=True)
 
 
 def session_summary(outcome):
@@ -140,12 +156,14 @@ def session_summary(outcome):
         session = Session.open(outcome.root)
     except PsrigError:
         session = None
+    from ..report.details import settings_used
+
     stages, warnings = [], []
     for stage in outcome.stages:
         record = (session.stage(stage.name) if session else None) or {}
         stages.append({"name": stage.name, "ran": stage.ran, "seconds": round(stage.seconds, 3),
                        "note": stage.note or None, "status": record.get("status"),
-                       "warnings": list(stage.warnings), "settings": record.get("params") or {},
+                       "warnings": list(stage.warnings), "settings": settings_used(stage.name, record),
                        "outputs": list(record.get("outputs") or [])})
         warnings += [f"{stage.name}: {w}" for w in stage.warnings]
     normals = (session.stage("normals") if session else None) or {}

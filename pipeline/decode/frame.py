@@ -53,7 +53,7 @@ def frame_size(path, binning=1):
     return (height // 2, width // 2) if binning == 2 else (height, width)
 
 
-def decode_frame(path, *, method="mosaic", channels="rgb", binning=1, gamma="auto"):
+def decode_frame(path, *, method="mosaic", channels="rgb", binning=1, gamma="auto", decided=None):
     """Decode one frame file into linear values.
 
     Parameters
@@ -69,6 +69,9 @@ def decode_frame(path, *, method="mosaic", channels="rgb", binning=1, gamma="aut
         2: half size, each output pixel the mean of a 2x2 cell (raw: R, (G1+G2)/2, B).
     gamma : 'auto', 'srgb', 'linear' or float
         Transfer function of integer image files (see :func:`pipeline.decode.image.decode_image`).
+    decided : dict, optional
+        What ``gamma='auto'`` decided from the session's data for 8-bit image files that declare
+        no transfer (``transfer``, ``why``).
 
     Returns
     -------
@@ -84,7 +87,7 @@ def decode_frame(path, *, method="mosaic", channels="rgb", binning=1, gamma="aut
     if not Path(path).is_file():
         raise ImageFileError(f"{path}: file is missing")
     if frame_format(path).kind == "image":
-        rgb, saturated, info = decode_image(path, gamma=options["gamma"])
+        rgb, saturated, info = decode_image(path, gamma=options["gamma"], decided=decided)
         if binning == 2:
             rgb, saturated = bin_rgb(rgb, saturated)
     else:

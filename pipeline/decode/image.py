@@ -60,7 +60,7 @@ def _finite(linear, path):
     return linear
 
 
-def decode_image(path, *, gamma="auto"):
+def decode_image(path, *, gamma="auto", decided=None):
     """Read an image frame as linear RGB.
 
     Parameters
@@ -70,6 +70,9 @@ def decode_image(path, *, gamma="auto"):
         Transfer function of integer files: 'auto' takes what the file declares, else sRGB
         (8-bit) or linear (16-bit); any other value is applied to every integer file. Float
         files are always linear.
+    decided : dict, optional
+        ``transfer`` and ``why``: what ``--gamma auto`` decided from the session's data for
+        8-bit files that declare nothing (:mod:`pipeline.decode.autotransfer`).
 
     Returns
     -------
@@ -91,7 +94,8 @@ def decode_image(path, *, gamma="auto"):
     if native.dtype not in (np.uint8, np.uint16):
         native = (native >> (8 * (native.dtype.itemsize - 2))).astype(np.uint16)  # 32-bit integers
         info["bits"] = 16
-    transfer, why = choose_transfer(parse_gamma(gamma), declared_transfer(path, name, spec), info["bits"])
+    transfer, why = choose_transfer(parse_gamma(gamma), declared_transfer(path, name, spec), info["bits"],
+                                     decided)
     info.update(transfer=transfer, transfer_from=why)
     if transfer != "linear":
         info["gamma"] = transfer

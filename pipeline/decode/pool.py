@@ -150,7 +150,8 @@ def _decode(task):
     options = check_options(**task["options"])
     height, width = task["size"]
     if "merge" in task:
-        exposures = [_exposure(member, options, (height, width)) for member in task["merge"]]
+        exposures = [_exposure(member, options, (height, width), task.get("decided"))
+                     for member in task["merge"]]
         return _buffered(*merge_linear(task, exposures), (height, width))
     source = task["source"]
     if (options["method"], options["channels"], options["binning"]) == ("mosaic", "rgb", 1) \
@@ -162,18 +163,20 @@ def _decode(task):
                                         scratch=_workspace.setdefault("decoder", {}))
         return exr, planes, saturated, info
     linear, saturated, info = decode_frame(source, **{k: options[k] for k in ("method", "channels",
-                                                                              "binning", "gamma")})
+                                                                              "binning", "gamma")},
+                                           decided=task.get("decided"))
     return _buffered(linear, saturated, info, (height, width))
 
 
-def _exposure(member, options, size):
+def _exposure(member, options, size, decided=None):
     """(linear (H, W, C), saturated (H, W), info) of one exposure of a merge task: decoded
     from its raw file minus its reference, or read from its decoded outputs."""
     if "linear" in member:
         return read_image(member["linear"]), read_mask(member["saturation"]), {}
     source = member["source"]
     linear, saturated, info = decode_frame(source, **{k: options[k] for k in ("method", "channels",
-                                                                              "binning", "gamma")})
+                                                                              "binning", "gamma")},
+                                           decided=decided)
     _check_size(linear, size)
     if member.get("reference"):
         planes = [linear[:, :, channel] for channel in range(linear.shape[2])]
@@ -223,7 +226,8 @@ def decode_task(task, *, commit=True):
     task : dict
         ``id``, ``source`` (frame file), ``linear`` and ``saturation`` (output paths),
         ``options`` (for :func:`decode_frame`), ``reference`` (None or dict with ``kind``,
-        ``mean`` and ``saturated`` .npy paths) and ``size`` (expected (H, W)); or, instead of
+        ``mean`` and ``saturated`` .npy paths), ``size`` (expected (H, W)) and ``decided``
+        (None or what ``--gamma auto`` decided for 8-bit files declaring no transfer); or, instead of
         ``source`` and ``reference``, ``merge`` (the exposures of a bracket, each decoded
         here or read from its outputs) and ``reference_shutter``
         (:func:`pipeline.decode.merge.merge_task`).

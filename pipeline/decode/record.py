@@ -52,9 +52,15 @@ def describe(record):
     """Lines telling what a decode record assumed: transfer functions (naming ``--gamma``
     where one was assumed), raw files that took LibRaw's postprocess, the EXR size."""
     lines = []
+    decision = record.get("transfer_decision")
+    if decision:
+        lines.append(decision["message"])
     for key, ids in (record.get("transfer") or {}).items():
         what = f"{len(ids)} frame(s) ({_formats(record, ids)}) decoded as {key}"
-        if "assumed" in key:
+        if decision and key.endswith(f"({decision['why']})"):
+            # the decision's line says why; the files' line says which
+            what = f"{len(ids)} frame(s) ({_formats(record, ids)}) decoded as {key.split(' (')[0]} (decided from the data, above)"
+        elif "assumed" in key:
             what += "; if that is wrong, give --gamma srgb|linear|EXPONENT (psrig decode or psrig run)"
         lines.append(what)
     for sensor, ids in (record.get("postprocessed") or {}).items():

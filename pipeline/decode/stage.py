@@ -36,7 +36,9 @@ import os
 import shutil
 import time
 
+from .autotransfer import decide_transfer
 from .record import assumed, describe as describe_record, recorded_kwargs
+from .transfer import describe_transfer, undeclared_8bit
 from .frame import check_options, decode_frame, frame_size
 from .merge import decoded_inputs, lit_inputs, merge_task, unmergeable
 from .pool import prepare_pool, run_tasks, start_pool
@@ -132,11 +134,12 @@ def _merge_reusable(session, previous, params, group, digest):
     return entry.get("inputs_sha256") == digest and _outputs_intact(session, previous, group.id)
 
 
-def _task(session, frame, options, size, reference=None, receipt=None):
+def _task(session, frame, options, size, reference=None, receipt=None, decided=None):
     return {"id": frame["id"], "source": str(session.path(frame["file"])),
             "linear": str(session.linear_path(frame)),
             "saturation": str(session.saturation_path(frame)),
-            "options": options, "size": size, "reference": reference, "receipt": receipt}
+            "options": options, "size": size, "reference": reference, "receipt": receipt,
+            "decided": _decision(decided)}
 
 
 def receipt_path(session, frame_id):
@@ -144,23 +147,25 @@ def receipt_path(session, frame_id):
     return session.linear_path(frame_id).with_name(f".{frame_id}.receipt.json")
 
 
-def _receipt_base(session, params, inputs, frame, references):
+def _receipt_base(session, params, inputs, frame, references, decided=None):
     """What a frame's receipt says before it is decoded: its file and hash, the options, the
-    frames subtracted from it (ids, files, hashes)."""
+    frames subtracted from it (ids, files, hashes) and the transfer decided from the data."""
     return {"path": str(receipt_path(session, frame["id"])), "frame": frame["id"], "file": frame["file"],
             "source_sha256": inputs.get(frame["file"]), "params": plain(params),
-            "references": [[f["id"], f["file"], inputs.get(f["file"])] for f in references]}
+            "references": [[f["id"], f["file"], inputs.get(f["file"])] for f in references],
+            "decided": plain(_decision(decided))}
 
 
-def _adoptable(session, params, inputs, frame, references):
+def _adoptable(session, params, inputs, frame, references, decided=None):
     """(info, {output rel: sha256}) of a frame a killed run decoded and renamed into place but
     did not record, from its receipt, when the receipt matches this run (same file and hash,
     options and subtracted frames) and the outputs on disk still have its hashes; else None."""
     path = receipt_path(session, frame["id"])
     try:
         receipt = json.loads(path.read_text(encoding="utf-8"))
-        base = _receipt_base(session, params, inputs, frame, references)
-        if any(receipt.get(key) != base[key] for key in ("frame", "file", "source_sha256", "params", "references")):
+        base = _receipt_base(session, params, inputs, frame, references, decided)
+        if any(receipt.get(key) != base[key] for key in ("frame", "file", "source_sha256", "params", "references",
+                                                          "decided")):
             return None
         outputs = {}
         for output in (session.linear_path(frame), session.saturation_path(frame)):
@@ -174,6 +179,29 @@ def _adoptable(session, params, inputs, frame, references):
         return None
 
 
+def _decision(decided):
+    """What a decoded frame depends on of a transfer decision (a record's or a new one)."""
+    return {"transfer": decided["transfer"], "why": decided["why"]} if decided else None
+
+
+def _decide_transfer(session, frames, params, failed):
+    """``--gamma auto`` for 8-bit image frames that declare no transfer: decided from the
+    object frames (:mod:`.autotransfer`); None when the option names a transfer, when no
+    object frame is such a file, or when there are too few of them to tell."""
+    if params["gamma"] != "auto":
+        return None
+    objects = [f for f in frames if f["kind"] == "object" and f["id"] not in failed]
+    paths = [session.path(f["file"]) for f in objects]
+    if not paths or not undeclared_8bit(paths[0]):
+        return None
+    # what decode subtracts from the object frames (ambient, else dark) is in the model too
+    kind = "ambient" if any(f["kind"] == "ambient" for f in frames) else "dark"
+    unlit = [session.path(f["file"]) for f in frames if f["kind"] == kind and f["id"] not in failed
+             and f.get("bracket") is None]
+    unlit = unlit if unlit and all(undeclared_8bit(p) for p in unlit) else []
+    return decide_transfer([p for p in paths if undeclared_8bit(p)], unlit)
+
+
 class _Run:
     """State of one decode run: options, hashes, what succeeded (infos) and what failed.
 
@@ -184,9 +212,13 @@ class _Run:
     when the run is interrupted by Ctrl-C or an error.
     """
 
-    def __init__(self, session, params, inputs, sizes, failed, previous, jobs, show):
+    def __init__(self, session, params, inputs, sizes, failed, previous, jobs, show, decided=None):
         self.session, self.params, self.inputs, self.sizes = session, params, inputs, sizes
-        self.failed, self.previous, self.jobs, self.show = failed, previous, jobs, show
+        self.failed, self.jobs, self.show = failed, jobs, show
+        self.decided = decided  # what --gamma auto decided from the data (autotransfer), or None
+        if previous and _decision(previous.get("transfer_decision")) != _decision(decided):
+            previous = None  # frames decoded under another decided transfer are not reusable
+        self.previous = previous
         self.frames = session.frames()
         self.files = {f["id"]: f["file"] for f in self.frames}
         self.reference_shutter = reference_shutter(self.frames)  # what every merge is scaled to
@@ -225,13 +257,14 @@ class _Run:
                 self.unrecorded += 1
             else:
                 self.tasks.append(_task(self.session, frame, dict(self.params), self.sizes[frame["id"]], reference,
-                                        _receipt_base(self.session, self.params, self.inputs, frame, references)))
+                                        _receipt_base(self.session, self.params, self.inputs, frame, references,
+                                                      self.decided), self.decided))
 
     def _adopt(self, frame, references):
         """A frame's receipt (:func:`_adoptable`), unless decoding is forced."""
         if self.force:
             return None
-        return _adoptable(self.session, self.params, self.inputs, frame, references)
+        return _adoptable(self.session, self.params, self.inputs, frame, references, self.decided)
 
     def queue_merge(self, group, digest, members):
         """Plan the merge of a bracket ``group`` unless the previous run's still holds
@@ -241,8 +274,9 @@ class _Run:
             self._keep_outputs(group.id)
             return
         self.merge_inputs[group.id] = digest
-        self.tasks.append(merge_task(self.session, group, members(), self.reference_shutter,
-                                     dict(self.params), self.sizes[group.frames[0]["id"]]))
+        task = merge_task(self.session, group, members(), self.reference_shutter,
+                          dict(self.params), self.sizes[group.frames[0]["id"]])
+        self.tasks.append({**task, "decided": _decision(self.decided)})
 
     def fail_merge(self, group, problem):
         """``group`` cannot be merged: say why, and remove an earlier run's merge of it (of
@@ -352,7 +386,10 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
         ``frames_not_raw``, per-frame ``frames`` info, ``merged`` ({bracket group: info},
         bracketed sessions only), ``seconds``, and what was assumed: ``transfer`` ({transfer and why: frame ids} of
         image files), ``postprocessed`` ({sensor: frame ids} of raw files the mosaic path
-        cannot decode), ``linear_bytes`` and ``compression`` ({'zip' or 'none': count}).
+        cannot decode), ``linear_bytes`` and ``compression`` ({'zip' or 'none': count});
+        ``transfer_decision`` when ``gamma='auto'`` decided the transfer of 8-bit files
+        that declare none from the object frames (:func:`.autotransfer.decide_transfer`:
+        chosen transfer, whether a guess, the candidates' rank-3 residuals, the message).
     """
     start = time.perf_counter()
     params = check_options(method, channels, binning, gamma, compression, half)
@@ -376,8 +413,9 @@ def decode_session(session, *, method="mosaic", channels="rgb", binning=1, gamma
     if pooled:
         prepare_pool()  # ... or while the headers are read (no-op when already running)
     sizes = _sizes(session, frames, binning, failed)
+    decided = _decide_transfer(session, frames, params, failed)
     run = _Run(session, params, inputs, sizes, failed, None if force else session.stage("decode"),
-               jobs, progress)
+               jobs, progress, decided)
     run.started, run.force = start, force
     scratch = session.path(DECODE_SCRATCH)
     try:
@@ -486,6 +524,35 @@ def _note_subtracted(run, lit_kind, by_label):
     run.subtracted[lit_kind] = entry
 
 
+def _kind_of_file(info):
+    """What a decoded frame file was, as the mixed-input warning names it."""
+    if info.get("raw", True):
+        return "camera raw"
+    transfer = f", decoded as {describe_transfer(info['transfer'])}" if "transfer" in info else ""
+    return f"{info.get('bits', '?')}-bit {str(info.get('format', 'image')).upper()}{transfer}"
+
+
+def _mixed_inputs(frames, decoded, named=6):
+    """A warning naming the lit frames of one kind whose files differ from the others' (bit
+    depth, format, transfer): one 8-bit frame among 16-bit ones is decoded on another scale and
+    curve, and the normals stage can only rescale it."""
+    warnings = []
+    for kind in _LIT_KINDS:
+        groups = {}
+        for frame in frames:
+            if frame["kind"] == kind and frame["id"] in decoded:
+                groups.setdefault(_kind_of_file(decoded[frame["id"]]), []).append(frame["id"])
+        if len(groups) < 2:
+            continue
+        usual = max(groups, key=lambda key: len(groups[key]))
+        odd = [(key, ids) for key, ids in groups.items() if key != usual]
+        listed = "; ".join(f"{', '.join(ids[:named])}{f' and {len(ids) - named} more' if len(ids) > named else ''} "
+                           f"{'is' if len(ids) == 1 else 'are'} {key}" for key, ids in odd)
+        warnings.append(f"mixed {kind} frames: {listed}, while the other {len(groups[usual])} are {usual}; "
+                        "frames of one capture should be one kind of file (was a frame replaced or re-exported?)")
+    return warnings
+
+
 def _record(session, frames, run, seconds, status=None):
     done = [f for f in frames if f["id"] in run.infos]
     merged = {group: run.merged[group] for group in sorted(run.merged)}
@@ -501,7 +568,10 @@ def _record(session, frames, run, seconds, status=None):
     extra = {"merged": merged} if merged else {}
     if run.adopted:   # decoded by a run killed before it recorded them (their receipts)
         extra["adopted"] = list(run.adopted)
+    if run.decided:
+        extra["transfer_decision"] = run.decided
     warnings = [w for info in merged.values() for w in info.get("warnings") or []]
+    warnings += _mixed_inputs(frames, decoded)
     if warnings:  # where psrig run and the report look for them
         extra["warnings"] = warnings
     return session.record_stage(

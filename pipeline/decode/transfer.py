@@ -15,7 +15,7 @@ import numpy as np
 
 from ..gamma import inverse_gamma_lut
 
-__all__ = ["declared_transfer", "choose_transfer", "describe_transfer", "icc_transfer"]
+__all__ = ["declared_transfer", "choose_transfer", "describe_transfer", "icc_transfer", "undeclared_8bit"]
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _SRGB_PARAMS = np.array([2.4, 1 / 1.055, 0.055 / 1.055, 1 / 12.92, 0.04045])
@@ -194,18 +194,43 @@ def declared_transfer(path, name, spec):
     return found or _from_spec(spec, name)
 
 
-def choose_transfer(requested, declared, bits):
+def choose_transfer(requested, declared, bits, decided=None):
     """(transfer, why) for an integer image file.
 
     ``requested`` is the decode option ('auto' or a transfer): anything but 'auto' wins.
-    Otherwise the file's declaration, else the default: sRGB for 8-bit files (cameras and
-    editors encode them so) and linear for 16-bit ones (the photometric-stereo datasets that
-    ship 16-bit PNGs without metadata, DiLiGenT among them, store linear values).
+    Otherwise the file's declaration; else, for 8-bit files, ``decided`` ({'transfer', 'why'}:
+    what the decode stage read from the session's object frames,
+    :mod:`pipeline.decode.autotransfer`) when given; else the default: sRGB for 8-bit files
+    (cameras and editors encode them so) and linear for 16-bit ones (the photometric-stereo
+    datasets that ship 16-bit PNGs without metadata, DiLiGenT among them, store linear values).
     """
     if requested != "auto":
         return requested, "--gamma"
     if declared is not None:
         return declared[0], f"declared by {declared[1]}"
+    if bits <= 8 and decided:
+        return decided["transfer"], decided["why"]
     if bits <= 8:
         return "srgb", "assumed: 8-bit file without colour metadata"
     return "linear", f"assumed: {bits}-bit file without colour metadata"
+
+
+def undeclared_8bit(path):
+    """True when ``path`` is an 8-bit integer image that declares no transfer function (the
+    files ``--gamma auto`` decides from the data); reads the header only."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()  # not an image (a camera raw): not this function's to report
+        return False
+    try:
+        spec, name = inp.spec(), inp.format_name()
+    finally:
+        inp.close()
+    if spec.format.basetype not in (oiio.UINT8, oiio.INT8):
+        return False
+    try:
+        return declared_transfer(path, name, spec) is None
+    except Exception:  # an unreadable header is decode's to report, frame by frame
+        return False

@@ -44,7 +44,9 @@ def expand_glob(pattern, what="--object", *, keep_all=False, exclude=()):
 
     Parameters
     ----------
-    pattern : str
+    pattern : str, or list of str
+        A list is taken in its order: each pattern expanded and sorted naturally, each plain
+        file name as given (not skipped for its name); a file named twice is refused.
     what : str
         The option named in errors.
     keep_all : bool
@@ -57,6 +59,8 @@ def expand_glob(pattern, what="--object", *, keep_all=False, exclude=()):
     files : list of Path
     skipped : list of Path
     """
+    if not isinstance(pattern, (str, Path)):
+        return _expand_list(pattern, what, keep_all, exclude)
     matched = sorted((Path(p) for p in glob.glob(str(pattern)) if Path(p).is_file()), key=natural_key)
     if not matched:
         raise InputError(f"{what} {pattern!r}: no files match this pattern")
@@ -67,6 +71,33 @@ def expand_glob(pattern, what="--object", *, keep_all=False, exclude=()):
         raise InputError(f"{what} {pattern!r}: every file it matches is named like a mask or a map "
                          f"({', '.join(p.name for p in skipped[:4])}); give --keep-all to use them as frames")
     return files, skipped
+
+
+def _expand_list(patterns, what, keep_all, exclude):
+    """:func:`expand_glob` of several patterns and file names, in the order given."""
+    files, skipped = [], []
+    for one in patterns:
+        if any(char in str(one) for char in "*?["):
+            found, left = expand_glob(one, what, keep_all=keep_all, exclude=exclude)
+            files += found
+            skipped += left
+        elif Path(one).is_file():
+            files.append(Path(one))
+        else:
+            raise InputError(f"{what} {one}: no such file")
+    seen = {}
+    for path in files:
+        if path.resolve() in seen:
+            raise InputError(f"{what}: {path} is given twice (as {seen[path.resolve()]} too); each frame once")
+        seen[path.resolve()] = path
+    return files, skipped
+
+
+def _shown(pattern):
+    """A pattern, or a list of them, as the notes show it."""
+    if isinstance(pattern, (str, Path)):
+        return repr(str(pattern))
+    return " ".join(map(str, pattern[:3])) + (f" ... ({len(pattern)} given)" if len(pattern) > 3 else "")
 
 
 #: what to do with sphere photos cropped apart from the object's (PSBox ships them so)
@@ -137,7 +168,7 @@ def _count_error(what, pattern, files, objects):
 
 
 def _matched(kind, pattern, files, skipped):
-    line = f"{kind}: {len(files)} file(s) match {pattern!r}: {files[0].name}"
+    line = f"{kind}: {len(files)} file(s) match {_shown(pattern)}: {files[0].name}"
     line += f" ... {files[-1].name}" if len(files) > 1 else ""
     if skipped:
         line += (f"; skipped {len(skipped)} named like masks or maps ({', '.join(p.name for p in skipped[:4])}"

@@ -1,8 +1,10 @@
 """The ``integrate`` stage: normals/normals.exr + normals/mask.png -> depth/.
 
-Writes ``depth/depth.exr`` (float32, NaN outside the mask), ``depth/mesh.ply`` (vertex colour
-from the albedo, per-vertex ``quality`` from ``normals/uncertainty.exr`` when the normals stage
-wrote one), ``depth/mesh.obj`` with ``mesh.mtl`` and the albedo texture ``albedo.png``,
+Writes ``depth/depth.exr`` (float32, NaN outside the mask; in the unit of ``--pixel-size`` /
+``--distance`` when one is given, else pixels or relative depth: ``depth_unit`` in
+integration.yaml), ``depth/mesh.ply`` (vertex colour from the albedo, per-vertex ``quality``
+from ``normals/uncertainty.exr`` when the normals stage wrote one), ``depth/mesh.obj`` with
+``mesh.mtl`` and the albedo texture ``albedo.png``,
 ``depth/shaded.png`` and ``depth/integration.yaml`` (method, projection, components and the
 statement that offsets / scales between components are unknown, the mesh's unit and the faces
 left out across depth jumps), then records the stage.
@@ -122,7 +124,8 @@ def write_depth_outputs(folder, result, normals, K=None, info=None, albedo=None,
     folder = Path(folder)
     scale, unit = mesh_units(K, mesh_options.get("pixel_size"), mesh_options.get("distance"), mesh_options.get("unit"))
     slope = float(mesh_options.get("max_slope_deg") or MAX_SLOPE_DEG)
-    write_image(folder / "depth.exr", result.depth.astype(np.float32), bits=32)
+    # with a length given (--pixel-size / --distance), depth.exr is in its unit like the meshes
+    write_image(folder / "depth.exr", (result.depth * (scale or 1.0)).astype(np.float32), bits=32)
     mesh = build_mesh(result.depth, K, normals, albedo, scale=scale, unit=unit, max_slope_deg=slope,
                       uncertainty=uncertainty)
     comments = [f"unit {unit}", "vertex colour: albedo, sRGB" if albedo is not None else "no colour"]
@@ -144,9 +147,14 @@ def write_depth_outputs(folder, result, normals, K=None, info=None, albedo=None,
     summary = {
         "method": result.method,
         "projection": "perspective" if result.perspective else "orthographic",
-        "depth": ("positive distance along the optical axis, up to scale (geometric mean 1 per "
+        "depth": (f"positive distance along the optical axis, in {unit} (geometric mean the --distance "
+                  "given, per component)" if result.perspective and scale else
+                  "positive distance along the optical axis, up to scale (geometric mean 1 per "
                   "component)" if result.perspective else
+                  f"height toward the camera in {unit} (pixels times --pixel-size), up to offset (mean 0 "
+                  "per component)" if scale else
                   "height toward the camera in pixel units, up to offset (mean 0 per component)"),
+        "depth_unit": unit if scale else ("px" if not result.perspective else "relative"),
         "K": None if K is None else np.asarray(K).tolist(),
         "pixels": int(np.isfinite(result.depth).sum()),
         "components": result.n_components,
@@ -207,6 +215,7 @@ def integrate_session(session, *, K=None, method="smooth", force=False, invalid=
     start = time.perf_counter()
     normals, mask = _read_inputs(session)
     result = integrate_files(normals, mask, K, method, str(session.path(NORMALS)), **options)
+    result.warnings = [_why_no_normal(session, w) for w in result.warnings]
     albedo = read_image(session.path(ALBEDO)) if ALBEDO in inputs else None
     if albedo is not None and albedo.shape[:2] != mask.shape:
         raise InputError(f"{session.path(ALBEDO)}: size {albedo.shape[:2]} differs from {NORMALS} {mask.shape}")
@@ -221,6 +230,23 @@ def integrate_session(session, *, K=None, method="smooth", force=False, invalid=
                          offsets_between_components="unknown" if result.n_components > 1 else "n/a",
                          iterations=result.iterations, mesh=summary["mesh"], warnings=summary["warnings"])
     return result
+
+
+#: statuses of the normals stage that leave a pixel without a normal (pipeline.photometric.STATUS)
+_NO_NORMAL = ("shadowed", "too_few", "ill_posed")
+
+
+def _why_no_normal(session, warning):
+    """A 'dropped ... non-finite or zero normals' warning with the normals stage's reasons, so
+    that its count adds up with what the normals line said (which warns only of the statuses
+    above their share limits)."""
+    if "have non-finite or zero normals" not in warning:
+        return warning
+    counts = (session.stage("normals") or {}).get("status_counts") or {}
+    reasons = [f"{name} {counts[name]}" for name in _NO_NORMAL if counts.get(name)]
+    if not reasons:
+        return warning
+    return warning + f" (the normals stage gave them none: {', '.join(reasons)}, by its status counts)"
 
 
 def _read_inputs(session):

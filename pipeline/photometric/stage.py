@@ -19,8 +19,8 @@ import numpy as np
 
 from ..errors import StageError
 from ..imageio import read_image, read_mask, write_image, write_mask, write_normal_png
-from ..lightsio import read_lights_yaml
-from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, UNCERTAINTY
+from ..lightsio import read_exclude, read_lights_yaml
+from ..paths import EXCLUDE, LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, UNCERTAINTY
 from ..progress import progress as progress_bar
 from ..settings.normals import EstimateOptions, NormalsOptions
 from ..core.stage import Stage
@@ -92,6 +92,8 @@ class NormalsRun:
     mask_rel: str = None
     started: float = field(default_factory=time.time)
     align: str = "auto"
+    by_hand: dict = field(default_factory=dict)
+    mask_info: dict = None
 
     def solver_lights(self, shape):
         """The used lights as the solver takes them: directions (K, 3) or PointLights for ``shape``."""
@@ -102,8 +104,13 @@ class NormalsRun:
 
     def extra(self):
         """Stage-record entries of the lights used."""
-        return {"lights_used": len(self.frames), "lights_left_out": sorted(int(k) for k in self.lights.flags),
-                "light_model": self.model}
+        extra = {"lights_used": len(self.frames), "lights_left_out": sorted(int(k) for k in self.lights.flags),
+                 "light_model": self.model}
+        if self.by_hand:
+            extra["lights_left_out_by_hand"] = {str(k): why for k, why in self.by_hand.items()}
+        if self.mask_info:
+            extra["mask"] = self.mask_info
+        return extra
 
 
 def _object_frames(session):
@@ -117,7 +124,7 @@ def _object_frames(session):
 
 
 def _inputs(session, frames, mask_rel):
-    rels = [LIGHTS] + ([mask_rel] if mask_rel else [])
+    rels = [LIGHTS] + ([mask_rel] if mask_rel else []) + ([EXCLUDE] if session.path(EXCLUDE).is_file() else [])
     for frame in frames:
         for path in (session.linear_path(frame), session.saturation_path(frame)):
             if not path.is_file():
@@ -156,12 +163,16 @@ def stage_params(options):
 
 
 def _read_stage_lights(session, frames):
-    """The session's lights and the object frames whose light is not flagged."""
+    """The session's lights (flags: lights.yaml's and exclude.yaml's), the object frames whose
+    light is not flagged, and {light: why} of those left out by hand (exclude.yaml)."""
     lights = read_lights_yaml(session.path(LIGHTS))
     top = max(f["light"] for f in frames)
     if top >= len(lights):
         raise StageError(f"{session.path(LIGHTS)}: {len(lights)} lights, but frame light index {top} is used")
-    return lights, [f for f in frames if f["light"] not in lights.flags]
+    by_hand = read_exclude(session, len(lights))
+    for index, why in by_hand.items():
+        lights.flags.setdefault(index, f"left out by hand ({EXCLUDE}): {why}")
+    return lights, [f for f in frames if f["light"] not in lights.flags], by_hand
 
 
 def begin_normals(session, *, force=False, **options):
@@ -180,9 +191,10 @@ def begin_normals(session, *, force=False, **options):
     if not force and session.stage_is_current(STAGE, params, inputs):
         return None
     started = time.time()
-    lights, used = _read_stage_lights(session, frames)
+    lights, used, by_hand = _read_stage_lights(session, frames)
     return NormalsRun(chosen.method, chosen.solver_options(), params, inputs, used, lights,
-                      light_model(lights, chosen.lights_model), chosen.near_depth, mask_rel, started, chosen.align)
+                      light_model(lights, chosen.lights_model), chosen.near_depth, mask_rel, started, chosen.align,
+                      by_hand)
 
 
 class ChannelSums:
@@ -225,9 +237,19 @@ def load_object_stack(session, frames, lights, channels=None):
     return np.stack(images), np.stack(valid)
 
 
+#: without a mask, the object is where the brightest observation exceeds this share of the
+#: object's bright level (the 99.5th percentile of the peaks)
+MASK_LEVEL = 0.05
+#: a mask made from brightness with more parts than this, or more of the frame than
+#: MASK_MOST, is a warning (a lit background or table solved as the object)
+MASK_PARTS = 10
+MASK_MOST = 0.85
+
+
 def object_mask(session, run, images):
     """The session's object mask, or pixels whose brightest observation in ``images`` (K, H, W)
-    exceeds 5 % of the object's bright level."""
+    exceeds :data:`MASK_LEVEL` of the object's bright level; where it came from, its pixels
+    and parts go to ``run.mask_info`` (the record's ``mask``, :func:`mask_info`)."""
     if run.mask_rel:
         mask = read_mask(session.path(run.mask_rel))
         if mask.shape != images.shape[1:]:
@@ -236,9 +258,44 @@ def object_mask(session, run, images):
         if not mask.any():   # edited after import (import refuses an empty mask)
             raise StageError(f"{session.path(run.mask_rel)}: the object mask is empty (no white pixel); "
                              "replace it by the object's mask")
+        run.mask_info = mask_info(mask, run.mask_rel)
         return mask
     peak = images.max(axis=0)
-    return peak > 0.05 * np.percentile(peak, 99.5)
+    mask = peak > MASK_LEVEL * np.percentile(peak, 99.5)
+    run.mask_info = mask_info(mask)
+    return mask
+
+
+def mask_info(mask, given=None):
+    """Where the object mask (H, W) bool came from, its pixels and parts (8-connected), and a
+    warning when one made from brightness looks like more than an object.
+
+    Returns
+    -------
+    dict
+        ``source`` ('given' or 'brightness'), ``file`` (given) or ``level`` (share of the
+        object's level), ``pixels``, ``parts``, ``share`` (of the frame), ``text`` (the line
+        printed) and, when due, ``warning``.
+    """
+    import cv2
+
+    pixels = int(mask.sum())
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    parts = int(count) - 1
+    largest = int(stats[1:, cv2.CC_STAT_AREA].max()) if parts else 0
+    share = pixels / mask.size
+    counted = f"{pixels:,} pixels in {parts:,} part{'s' * (parts != 1)}"
+    if given:
+        return {"source": "given", "file": given, "pixels": pixels, "parts": parts, "share": round(share, 4),
+                "text": f"mask: {given} (given at import): {counted}"}
+    info = {"source": "brightness", "level": MASK_LEVEL, "pixels": pixels, "parts": parts, "share": round(share, 4),
+            "text": f"mask: none given; made from brightness, {100 * MASK_LEVEL:g} % of the object's level: {counted}"}
+    if parts > MASK_PARTS or share > MASK_MOST:
+        info["warning"] = (f"the mask made from brightness is {parts:,} part{'s' * (parts != 1)} (the largest "
+                           f"{100 * largest / max(pixels, 1):.0f} % of it) covering {100 * share:.0f} % of the "
+                           "frame: it probably holds more than the object (a lit background or table, noise); "
+                           "give an object mask (psrig import images ... --mask FILE)")
+    return info
 
 
 def normals_session(session, *, force=False, show_progress=True, **options):
@@ -334,6 +391,8 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
     extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer,
                                          registration=extra.get("registration"))
+    if (run.mask_info or {}).get("warning"):
+        extra["warnings"].append(run.mask_info["warning"])
     return session.record_stage(STAGE, run.params, run.inputs, outputs, seconds=time.time() - run.started,
                                 **extra)
 

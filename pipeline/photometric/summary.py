@@ -9,7 +9,7 @@ normals`` and ``psrig run`` show them. :func:`normals_summary` is the line print
 
 import numpy as np
 
-from ..paths import LIGHTS
+from ..paths import EXCLUDE, LIGHTS
 from .frame_gains import UNCALIBRATED_SHARE
 from .methods import share_text
 from .outline import SEEN_WHOLE, mirrored_axes, transposed_axes
@@ -80,7 +80,7 @@ def _registration_warnings(found, lights):
                 "(psrig normals --align-frames off: only say); capture them again to be sure"]
     why_not = f" (not aligned: {found['not_aligned']})" if found.get("not_aligned") else ""
     return [said + "Their pixels see other points of the surface, which blurs and biases the normals: capture "
-            f"them again, or flag their lights in {LIGHTS} to leave them out{why_not}"]
+            f"them again, or leave their lights out by hand ({EXCLUDE}){why_not}"]
 
 
 def _outline_warnings(check):
@@ -109,11 +109,15 @@ def _gain_warnings(frame_gains, lights, transfer=()):
     rescaled = frame_gains.get("rescaled") or {}
     if not rescaled:
         return []
+    # the farthest from 1 first: a frame rescaled by 0.09x must not hide behind "... and 13 more"
+    rescaled = dict(sorted(rescaled.items(), key=lambda item: -abs(np.log(max(item[1], 1e-12)))))
     gamma = _transfer_hint(transfer)
     if frame_gains.get("uncalibrated"):
         low, high = min(rescaled.values()), max(rescaled.values())
+        farthest = ", ".join(f"{name} ({gain:.2f}x)" for name, gain in list(rescaled.items())[:3])
         return [f"{len(rescaled)} of {lights} frames are not as bright as the lights' intensities say "
-                f"({low:.2f}x to {high:.2f}x the others): were the intensities given ({LIGHTS})? The frames "
+                f"({low:.2f}x to {high:.2f}x the others; farthest {farthest}): were the intensities given "
+                f"({LIGHTS})? The frames "
                 "were rescaled to the others, but a brightness that changes steadily across the lights "
                 "looks like a tilt of the whole object: calibrate the intensities, the normals may be off "
                 f"by degrees (the lights' directions were not judged){gamma}"]
@@ -166,13 +170,33 @@ def normals_summary(record):
     anchor = record.get("specular_anchor") or {}
     cone = f"; lights' cone scaled by {anchor['cone_scale']:.3f} (specular anchor{_range_text(anchor)})" \
         if anchor.get("anchor") == "corrected" else ""
-    left_out = record.get("lights_left_out") or []
+    by_hand = record.get("lights_left_out_by_hand") or {}
+    left_out = [k for k in record.get("lights_left_out") or [] if str(k) not in by_hand]
     flagged = f"; lights left out (flagged in {LIGHTS}): {', '.join(map(str, left_out))}" if left_out else ""
+    if by_hand:
+        flagged += f"; lights left out by hand ({EXCLUDE}): {', '.join(by_hand)}"
+    mask = (record.get("mask") or {}).get("text")
+    doubt = doubtful(record)
+    lead = f"{record.get('pixels', 0)} pixels, normals doubtful ({doubt}; see the warning); fit status" if doubt \
+        else f"{record.get('pixels', 0)} pixels"
     rescaled = (record.get("frame_gains") or {}).get("rescaled") or {}
     gains = f"; {len(rescaled)} frame(s) rescaled to the others' brightness" if rescaled else ""
     found = record.get("registration") or {}
     aligned = f"; {len(found['moved'])} moved frame(s) aligned to the others" if found.get("aligned") else ""
-    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{aligned}{flagged}{uncertainty_text(record)}"
+    return f"{lead}: {shares}{cone}{gains}{aligned}{flagged}{uncertainty_text(record)}" + (f"; {mask}" if mask else "")
+
+
+def doubtful(record):
+    """Why a normals record's result as a whole is in doubt although its pixels' fits are fine
+    (the status shares say how each fit went, not whether the lights were right), or ''."""
+    gains = record.get("frame_gains") or {}
+    if gains.get("uncalibrated"):
+        return "the frames' brightness does not follow the lights' intensities: the whole map may be tilted"
+    lights = record.get("lights_used") or 0
+    off = (gains.get("directions") or {}).get("off") or {}
+    if lights and len(off) > UNCALIBRATED_SHARE * lights:
+        return "the lights are not where the light file puts them, by the images"
+    return ""
 
 
 def uncertainty_text(record):

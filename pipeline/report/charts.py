@@ -64,8 +64,19 @@ class Chart:
             self.parts += [f'<circle cx="{self.px(x):.1f}" cy="{self.py(y):.1f}" r="2.2" fill="{colour}"/>'
                            for x, y, g in zip(xs, ys, good) if g]
 
+    def marks(self, xs, ys, colour, top, what):
+        """Up-pointing triangles at the top of the axis where ``ys`` exceed ``top`` (drawn
+        clipped), each with its value as a tooltip."""
+        for x, y in zip(xs, ys):
+            if np.isfinite(y) and y > top:
+                px, py = self.px(x), self.py(top)
+                self.parts.append(f'<path d="M{px - 3.5:.1f},{py + 5:.1f} L{px + 3.5:.1f},{py + 5:.1f} L{px:.1f},'
+                                  f'{py - 1:.1f} Z" fill="{colour}"><title>{html.escape(what)} at {x:g}: {y:.1f} deg '
+                                  f'(above the axis)</title></path>')
+
     def legend(self, entries):
-        """entries: [(label, colour, dashed)], listed under the plot (long labels fit there)."""
+        """entries: [(label, colour, style)], listed under the plot (long labels fit there);
+        style False: solid line, True: dashed, 'bar': a filled box, 'mark': a triangle."""
         self.entries = list(entries)
 
     def svg(self, title):
@@ -85,9 +96,16 @@ class Chart:
                     f'text-anchor="middle">{html.escape(self.y_label)}</text>')
         for i, (label, colour, dash) in enumerate(self.entries):
             y = self.height + 12 + 14 * i
-            style = ' stroke-dasharray="4,3"' if dash else ""
-            axes.append(f'<line x1="{self.left}" y1="{y - 4}" x2="{self.left + 18}" y2="{y - 4}" stroke="{colour}" '
-                        f'stroke-width="2"{style}/><text x="{self.left + 24}" y="{y}">{html.escape(label)}</text>')
+            if dash == "bar":
+                sample = f'<rect x="{self.left + 3}" y="{y - 9}" width="12" height="9" fill="{colour}"/>'
+            elif dash == "mark":
+                sample = (f'<path d="M{self.left + 5:.1f},{y:.1f} L{self.left + 13:.1f},{y:.1f} L{self.left + 9:.1f},'
+                          f'{y - 8:.1f} Z" fill="{colour}"/>')
+            else:
+                style = ' stroke-dasharray="4,3"' if dash else ""
+                sample = (f'<line x1="{self.left}" y1="{y - 4}" x2="{self.left + 18}" y2="{y - 4}" stroke="{colour}" '
+                          f'stroke-width="2"{style}/>')
+            axes.append(f'{sample}<text x="{self.left + 24}" y="{y}">{html.escape(label)}</text>')
         height = self.height + (14 * len(self.entries) + 14 if self.entries else 0)
         return (f'<svg class="chart" xmlns="http://www.w3.org/2000/svg" width="{self.width}" '
                 f'height="{height}" viewBox="0 0 {self.width} {height}" role="img" '
@@ -170,17 +188,27 @@ def error_by_observations(series, top, counted="used"):
         return ""
     high = max(d[1].max() for d in data)
     chart = Chart((0, high + 1), (0, top), x_label=COUNTED[counted], y_label="angular error (deg)")
+    bar_entry = []
     if len(data) == 1:
         _, levels, mean, median, pixels = data[0]
         share = pixels / pixels.sum()
-        chart.bars(levels - 0.4, levels + 0.4, share / max(share.max(), 1e-12) * top * 0.9, "#e4e4e4",
-                   title=lambda a, b, h: f"{(a + b) / 2:.0f} observations")
-    entries = []
+        # the bars have no axis of their own: the tallest is drawn at 90 % of the plot's height
+        scale = top * 0.9 / max(share.max(), 1e-12)
+        chart.bars(levels - 0.4, levels + 0.4, share * scale, "#e4e4e4",
+                   title=lambda a, b, h: f"{(a + b) / 2:.0f} observations: {100 * h / scale:.2f} % of the pixels")
+        bar_entry = [(f"pixels at each count (grey bars, not on the degree axis: the tallest is "
+                      f"{100 * share.max():.1f} % of the pixels)", "#c8c8c8", "bar")]
+    entries, clipped = [], False
     for (label, levels, mean, median, pixels), colour in zip(data, SERIES_COLOURS):
         chart.line(levels, np.minimum(mean, top), colour, dots=True)
         chart.line(levels, np.minimum(median, top), colour, dash="4,3")
+        chart.marks(levels, mean, colour, top, f"{label} mean")
+        chart.marks(levels, median, colour, top, f"{label} median")
+        clipped |= bool(np.any(mean > top) or np.any(median > top))
         entries += [(f"{label} mean", colour, False), (f"{label} median", colour, True)]
     if len(data) == 1:
         entries = [("mean", SERIES_COLOURS[0], False), ("median", SERIES_COLOURS[0], True)]
-    chart.legend(entries)
+    if clipped:
+        entries.append((f"above {top:g} deg: drawn at the top (hover for the value)", "#555", "mark"))
+    chart.legend(entries + bar_entry)
     return chart.svg(f"angular error against the {COUNTED[counted]}")

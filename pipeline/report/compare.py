@@ -18,6 +18,7 @@ from ..imageio import write_image
 from ..photometric import share_text
 from ..session import now_iso
 from . import html, sections
+from .details import flatten, format_value, settings_used
 from .maps import bar_figures, choose_scales, map_figures, read_maps
 
 __all__ = ["compare_sessions", "prepare_compare_folder", "MARK", "ROWS"]
@@ -46,7 +47,22 @@ def _labels(sessions):
     if len(set(names)) < len(names):  # the same object processed twice: tell them by their parents
         names = [f"{s.root.parent.name}/{s.root.name}" for s in sessions]
     methods = [((s.stage("normals") or {}).get("params") or {}).get("method", "no normals") for s in sessions]
-    return [f"{name} ({method})" for name, method in zip(names, methods)]
+    differ = _differing_settings(sessions)
+    return [f"{name} ({'; '.join([method] + extra)})" for name, method, extra in zip(names, methods, differ)]
+
+
+def _differing_settings(sessions):
+    """Per session, 'stage key=value' of the settings (as used) in which the sessions differ,
+    but the normals method (in the label already): sessions that differ by --gamma must not
+    look alike."""
+    settings = [{f"{stage} {key}": format_value(value)
+                 for stage in ("decode", "calibrate", "normals", "integrate")
+                 for key, value in flatten(settings_used(stage, s.stage(stage)))
+                 if not key.endswith("sha256") and f"{stage} {key}" != "normals method"}
+                for s in sessions]
+    keys = sorted({k for one in settings for k in one})
+    varying = [k for k in keys if len({one.get(k) for one in settings}) > 1]
+    return [[f"{k}={one.get(k, 'not set')}" for k in varying] for one in settings]
 
 
 def _summary_table(sessions, labels, scores):

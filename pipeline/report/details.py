@@ -7,7 +7,7 @@ knobs, a check's outcome, an anchor's mismatch) shows without a change here.
 
 import html
 
-__all__ = ["record_rows", "stage_warnings", "flatten", "format_value", "STANDARD_KEYS"]
+__all__ = ["record_rows", "stage_warnings", "flatten", "format_value", "STANDARD_KEYS", "settings_used"]
 
 #: record keys shown elsewhere (the stages table) or not meant for reading
 STANDARD_KEYS = ("params", "version", "status", "finished", "seconds", "inputs", "outputs", "warnings")
@@ -44,6 +44,25 @@ def flatten(data, prefix=""):
         else:
             rows.append((name, value))
     return rows
+
+
+#: a sphere mask stored at import (pipeline.paths.SPHERE_MASK), which calibrate uses unasked
+_STORED_SPHERE_MASK = "calibration/sphere_mask.png"
+
+
+def settings_used(name, record):
+    """A stage's settings as it used them: its ``params``, with what it took without an option
+    named (a sphere mask stored at import, the transfer ``--gamma auto`` chose from the data),
+    so that settings shown are the settings used."""
+    params = dict((record or {}).get("params") or {})
+    if name == "calibrate" and params.get("sphere_mask") is None \
+            and _STORED_SPHERE_MASK in ((record or {}).get("inputs") or {}):
+        params["sphere_mask"] = f"{_STORED_SPHERE_MASK} (stored at import)"
+        params.pop("sphere_mask_sha256", None)
+    decided = (record or {}).get("transfer_decision")
+    if name == "decode" and params.get("gamma") == "auto" and decided:
+        params["gamma"] = f"auto ({decided['transfer']}{', a guess' if decided.get('guess') else ', from the data'})"
+    return params
 
 
 def record_rows(record):

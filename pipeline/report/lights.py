@@ -26,6 +26,19 @@ def _viridis(values):
     return ["#%02x%02x%02x" % tuple(int(255 * c + 0.5) for c in colormaps["viridis"](v)[:3]) for v in values]
 
 
+def _labelled(dirs, flags, spacing=11.0):
+    """Indices of the lights whose number is written beside their dot: flagged ones first,
+    then each one whose label would not land within ``spacing`` plot units of one already
+    written (96 lights' numbers overlap into a blot)."""
+    points = np.stack([_R * dirs[:, 0], -_R * dirs[:, 1]], axis=1)
+    order = sorted(range(len(dirs)), key=lambda k: (k not in flags, k))
+    placed = []
+    for k in order:
+        if not placed or np.min(np.linalg.norm(points[placed] - points[k], axis=1)) >= spacing:
+            placed.append(k)
+    return set(placed)
+
+
 def hemisphere_svg(lights, truth=None):
     """The hemisphere plot of a LightSet as an ``<svg>`` string.
 
@@ -56,6 +69,7 @@ def hemisphere_svg(lights, truth=None):
         t = t / np.linalg.norm(t, axis=1, keepdims=True)
         parts += [f'<circle cx="{c + _R * x:.1f}" cy="{c - _R * y:.1f}" r="6.5" fill="none" stroke="#000" '
                   f'stroke-width="0.8"/>' for x, y, _ in t]
+    labelled = _labelled(dirs, lights.flags)
     for k, ((x, y, z), colour) in enumerate(zip(dirs, colours)):
         px, py = c + _R * x, c - _R * y
         polar = np.degrees(np.arccos(np.clip(z, -1, 1)))
@@ -64,23 +78,33 @@ def hemisphere_svg(lights, truth=None):
         tip += f"; flagged: {why}" if why else ""
         parts.append(f'<g><title>{html.escape(tip)}</title><circle cx="{px:.1f}" cy="{py:.1f}" r="4.5" '
                      f'fill="{colour}" stroke="#222" stroke-width="0.5"/>'
-                     f'<text x="{px + 5:.1f}" y="{py - 4:.1f}" font-size="8">{k}</text></g>')
+                     + (f'<text x="{px + 5:.1f}" y="{py - 4:.1f}" font-size="8">{k}</text>' if k in labelled else "")
+                     + "</g>")
         if why:
             parts.append(f'<path d="M{px - 7:.1f},{py - 7:.1f} L{px + 7:.1f},{py + 7:.1f} M{px - 7:.1f},'
                          f'{py + 7:.1f} L{px + 7:.1f},{py - 7:.1f}" stroke="#d62728" stroke-width="2"/>')
     stops = "".join(f'<stop offset="{i / 8:.3f}" stop-color="{col}"/>'
                     for i, col in enumerate(_viridis(np.linspace(0, 1, 9))))
-    legend = (f'<defs><linearGradient id="intensity">{stops}</linearGradient></defs>'
-              f'<rect x="20" y="{_SIZE + 6}" width="{_SIZE - 40}" height="9" fill="url(#intensity)"/>'
-              f'<text x="20" y="{_SIZE + 27}">{low:.3g}</text>'
-              f'<text x="{_SIZE - 20}" y="{_SIZE + 27}" text-anchor="end">{high:.3g}</text>'
-              f'<text x="{c}" y="{_SIZE + 27}" text-anchor="middle">intensity (mean of channels)</text>')
+    if high > low:
+        legend = (f'<defs><linearGradient id="intensity">{stops}</linearGradient></defs>'
+                  f'<rect x="20" y="{_SIZE + 6}" width="{_SIZE - 40}" height="9" fill="url(#intensity)"/>'
+                  f'<text x="20" y="{_SIZE + 27}">{low:.3g}</text>'
+                  f'<text x="{_SIZE - 20}" y="{_SIZE + 27}" text-anchor="end">{high:.3g}</text>'
+                  f'<text x="{c}" y="{_SIZE + 27}" text-anchor="middle">intensity (mean of channels)</text>')
+    else:   # one value: a bar from it to itself says nothing
+        legend = (f'<rect x="20" y="{_SIZE + 6}" width="9" height="9" fill="{colours[0]}"/>'
+                  f'<text x="34" y="{_SIZE + 14}">every light\'s intensity is {low:.3g} (mean of channels)</text>')
+    unlabelled = len(dirs) - len(labelled)
     marks = (f'<text x="4" y="12">red cross: flagged ({len(lights.flags)})'
-             + ("; ring: true direction" if truth is not None else "") + "</text>")
+             + ("; ring: true direction" if truth is not None else "")
+             + (f"; {unlabelled} crowded labels left out (hover a dot)" if unlabelled else "") + "</text>")
     return (f'<svg class="hemisphere" xmlns="http://www.w3.org/2000/svg" width="{_SIZE}" height="{_SIZE + 34}" '
             f'viewBox="0 0 {_SIZE} {_SIZE + 34}" font-size="10" font-family="sans-serif" role="img">'
             f"<title>light directions seen from the camera</title>{marks}" + "".join(parts) + legend + "</svg>")
 
+
+#: per-light lists of lights.yaml in the unit of the light positions (``position_unit``)
+_POSITION_KEYS = ("distance", "ray_miss")
 
 #: the table's fixed columns (per-light lists of lights.yaml follow, then error and flag)
 LIGHT_HEADER = ["light", "frame", "x", "y", "z", "from axis (deg)", "azimuth (deg)", "intensity"]
@@ -100,7 +124,10 @@ def light_rows(lights, frames, errors=None):
     count = len(lights)
     extra = {k: v for k, v in sorted(lights.extra.items())
              if isinstance(v, list) and len(v) == count and all(_scalar(x) for x in v)}
-    header = LIGHT_HEADER + list(extra) + (["error vs truth (deg)"] if errors else []) + ["flag"]
+    unit = lights.extra.get("position_unit")
+    named = [f"{key} ({unit})" if unit and key in _POSITION_KEYS else f"{key} (deg)" if key.endswith("_deg") else key
+             for key in extra]
+    header = LIGHT_HEADER + named + (["error vs truth (deg)"] if errors else []) + ["flag"]
     rows = []
     dirs = np.asarray(lights.directions, float)
     intensities = np.asarray(lights.intensities, float).reshape(count, -1)

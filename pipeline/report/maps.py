@@ -59,6 +59,7 @@ class SessionMaps:
     depth: np.ndarray = None
     shaded: np.ndarray = None
     depth_unit: str = "px"
+    depth_scale: float = 1.0
     extra: dict = field(default_factory=dict)
 
 
@@ -94,6 +95,9 @@ def read_maps(session):
     maps.shaded = _read(session, SHADED)
     record = session.stage("integrate") or {}
     maps.depth_unit = "px" if not (record.get("params") or {}).get("K") else "relative depth"
+    mesh = record.get("mesh") or {}
+    if mesh.get("scale"):   # depth.exr in the unit a length given to integrate set (mm)
+        maps.depth_unit, maps.depth_scale = mesh.get("unit") or "mm", float(mesh["scale"])
     return maps
 
 

@@ -10,7 +10,7 @@ from ..paths import LIGHTS
 from ..photometric.uncertainty import agreement_text
 from ..session import STAGES
 from .charts import error_by_observations, error_histogram
-from .details import flatten, format_value, record_rows, stage_warnings
+from .details import flatten, format_value, record_rows, settings_used, stage_warnings
 from .html import details, escape, table
 from .lights import hemisphere_svg, light_rows
 
@@ -64,7 +64,7 @@ def settings_cell(params):
 #: per stage, the record entries that say what the stage decided (its rule, its checks'
 #: verdicts), shown beside its settings; every entry is in the stage records below
 OUTCOMES = {
-    "decode": ("compression", "subtracted.kind"),
+    "decode": ("compression", "subtracted.kind", "transfer_decision.message"),
     "calibrate": ("light_model", "flagged"),
     "normals": ("selection", "shared_shape_check", "specular_anchor", "lights_left_out", "uncertainty"),
     "integrate": ("mesh.unit", "mesh.faces_left_out_at_jumps"),
@@ -83,13 +83,17 @@ def stages_table(session):
     for name in STAGES:
         record = session.stage(name)
         if record is None:
-            # the report's own record is written after this page
-            rows.append([name, "this page" if name == "report" else "not run", "", "", "", "", ""])
+            # the report's own record is written after this page; a session without sphere
+            # frames keeps its imported lights (what psrig run calls "up to date (kept)")
+            kept = name == "calibrate" and not session.frames("sphere") and session.path(LIGHTS).is_file()
+            rows.append([name, "this page" if name == "report" else "up to date (kept)" if kept else "not run",
+                         "", "", "", escape(f"no sphere frames: the imported {LIGHTS} is kept") if kept else "",
+                         ""])
             continue
         seconds = record.get("seconds")
         warned = len(record.get("warnings") or [])
         rows.append([name, escape(str(record.get("status", "ok"))), "" if seconds is None else f"{seconds:.2f} s",
-                     escape(str(record.get("finished", ""))), settings_cell(record.get("params")),
+                     escape(str(record.get("finished", ""))), settings_cell(settings_used(name, record)),
                      _outcomes(name, record), f'<span class="flag">{warned}</span>' if warned else "0"])
     return table(["stage", "status", "time", "finished", "settings", "outcome", "warnings"], rows)
 
@@ -98,6 +102,10 @@ def _value(v, key=""):
     if isinstance(v, float) and (key.startswith("under_") or key == "coverage"):
         return f"{v:.1%}"  # shares of the pixels
     return f"{v:.4g}" if isinstance(v, float) else escape(format_value(v))
+
+
+#: depth scores that are lengths, in the ground truth's unit
+_DEPTH_LENGTHS = ("mean_abs", "median_abs", "rms")
 
 
 def scores_section(scores):
@@ -114,7 +122,9 @@ def scores_section(scores):
             rows = [[escape(k), _value(v)] for k, v in flatten(lt) if k != "per_light_deg"]
             parts.append("<h3>Light directions against ground truth (degrees)</h3>" + table(["metric", "value"], rows))
     if "depth" in scores:
-        rows = [[escape(k), _value(v)] for k, v in scores["depth"].items()]
+        # the errors are in the ground truth's unit (the estimate is fitted to it)
+        rows = [[escape(k + (" (ground truth's unit)" if k in _DEPTH_LENGTHS else "")), _value(v)]
+                for k, v in scores["depth"].items()]
         parts.append("<h3>Depth against ground truth</h3>" + table(["metric", "value"], rows))
     return '<div class="scores">' + "\n".join(f"<div>{p}</div>" for p in parts) + "</div>"
 

@@ -7,6 +7,7 @@ against the number of lit observations and of those used); the result maps on st
 map with its colour bar (angular error 0 .. 30 degrees unless told), the status map in the one
 status palette with names and pixel shares; the depth as a colour map, shaded, and in an
 interactive 3-D view; the lights as a hemisphere plot and a table; the calibration overlays;
+the object mask's outline over the brightest object frame, with where the mask came from;
 a thumbnail of every frame; and every stage record in full (settings, outcomes, warnings).
 
 Every picture is an 8-bit PNG inside ``report/`` and every write is atomic. The stage is
@@ -35,8 +36,10 @@ __all__ = ["report_session", "INDEX", "THUMB_SIDE", "LAYOUT"]
 
 INDEX = REPORT
 THUMB_SIDE = 160
+#: longer side of the mask figure (its outline over the brightest object frame)
+MASK_SIDE = 480
 #: the page's layout version: a report of an older layout is rebuilt
-LAYOUT = 2
+LAYOUT = 3
 _MAPS = (NORMALS, NORMALS_MASK, ALBEDO, RESIDUAL, UNCERTAINTY, STATUS_MAP, OBSERVATIONS, LIT_OBSERVATIONS, DEPTH,
          SHADED)
 
@@ -60,23 +63,56 @@ def _writer(session, written):
     return write
 
 
-def _thumbnails(session, write):
-    """One thumbnail per decoded frame: [(kind, [Figure])], one white per frame kind."""
+def _thumbnails(session, write, peak=None):
+    """One thumbnail per decoded frame: [(kind, [Figure])], one white per frame kind.
+
+    ``peak`` (a dict), when given, gets under 'image' the per-pixel brightest of the object
+    frames shrunk to :data:`MASK_SIDE` (what the mask figure draws its outline on)."""
     groups = {}
     for frame in session.stage_frames():  # an exposure bracket: its merged frame
         path = session.linear_path(frame)
         if path.is_file():
-            groups.setdefault(frame["kind"], []).append((frame, shrink(read_image(path), THUMB_SIDE)))
+            image = read_image(path)
+            if peak is not None and frame["kind"] == "object":
+                big = shrink(image, MASK_SIDE)
+                peak["image"] = big if "image" not in peak else np.maximum(peak["image"], big)
+            groups.setdefault(frame["kind"], []).append((frame, shrink(image, THUMB_SIDE)))
     out = []
+    whites = {kind: robust_max(np.concatenate([t.ravel() for _, t in items])) for kind, items in groups.items()}
+    lit = next((k for k in ("object", "sphere", "target") if k in whites), None)
     for kind, items in groups.items():
-        white = robust_max(np.concatenate([t.ravel() for _, t in items]))
+        # a dark frame on its own white is amplified noise in false colour: unlit frames are
+        # shown grey on the lit frames' scale, as dark as they are
+        unlit = kind in ("dark", "ambient") and lit is not None
+        white = whites[lit] if unlit else whites[kind]
         figures = []
         for frame, small in items:
-            rel = write(f"report/frames/{frame['id']}.png", tone_map(small, white))
+            shown = small.mean(axis=2, keepdims=True) if unlit else small
+            rel = write(f"report/frames/{frame['id']}.png", tone_map(shown, white))
             light = "" if frame.get("light") is None else f" (light {frame['light']})"
-            figures.append(Figure(rel, f"{frame['id']}{light}"))
+            scale = f", grey, on the {lit} frames' scale" if unlit else ""
+            figures.append(Figure(rel, f"{frame['id']}{light}{scale}"))
         out.append((kind, figures))
     return out
+
+
+def _mask_figure(session, write, peak):
+    """The object mask's outline (yellow) over the brightest of the object frames, captioned
+    with where the mask came from (the normals record's ``mask``); None without both."""
+    import cv2
+
+    record = (session.stage("normals") or {}).get("mask") or {}
+    if peak is None or not session.path(NORMALS_MASK).is_file():
+        return None
+    mask = read_image(session.path(NORMALS_MASK))[:, :, 0] > 0.5
+    rgb = tone_map(peak, robust_max(peak))
+    small = cv2.resize(mask.astype(np.uint8), (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_NEAREST)
+    edge = small.astype(bool) & ~cv2.erode(small, np.ones((3, 3), np.uint8)).astype(bool)
+    rgb[edge] = (255, 220, 0)
+    caption = record.get("text") or "mask"
+    if record.get("warning"):
+        caption += " (warning: " + record["warning"] + ")"
+    return Figure(write("report/mask.png", rgb), caption + "; outline over the brightest of the object frames")
 
 
 def _calibration_images(session, write):
@@ -163,7 +199,8 @@ def _page(session, scores, max_deg, write):
     depth_figs = [f for f in figures if f.key in depth_keys]
     if depth_figs or maps.depth is not None:
         view = ""
-        payload = None if maps.depth is None else mesh_payload(maps.depth, maps.normals, maps.albedo,
+        # the 3-D view takes orthographic heights in pixels (depth.exr may be in mm)
+        payload = None if maps.depth is None else mesh_payload(maps.depth / maps.depth_scale, maps.normals, maps.albedo,
                                                                _integration_K(session))
         if payload is not None:
             scripts = write_mesh_view(session.path("report"), "depth", payload)
@@ -173,7 +210,12 @@ def _page(session, scores, max_deg, write):
     overlays = _calibration_images(session, write)
     if overlays:
         body.append(("Calibration", html.figures(overlays)))
-    for kind, thumbs in _thumbnails(session, write):
+    peak = {}
+    thumbnails = _thumbnails(session, write, peak)
+    mask = _mask_figure(session, write, peak.get("image"))
+    if mask is not None:
+        body.append(("Mask", html.figures([mask])))
+    for kind, thumbs in thumbnails:
         body.append((f"Frames: {kind} ({len(thumbs)})", html.figures(thumbs, css="thumb")))
     body.append(("Stage records", sections.details_section(session)))
     return html.page(f"psrig report: {session.root.name}", body, scripts), scripts

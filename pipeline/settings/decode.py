@@ -34,8 +34,10 @@ class DecodeOptions(Options):
     binning: int = option(1, "2: half size, 2x2 cells averaged without demosaicing", choices=(1, 2), flag="--bin",
                           kind=int, parse=int)
     gamma: object = option("auto", "transfer function of 8- and 16-bit image frames: auto (what each file "
-                                   "declares, else sRGB for 8-bit and linear for 16-bit), srgb, linear, or an exponent such as "
-                                   "2.2; printed and recorded", parse=parse_gamma_text, kind=str, metavar="G")
+                                   "declares; for 8-bit files that declare none, the transfer under which the object "
+                                   "frames best fit a rank-3 (Lambertian) stack, sRGB when none fits clearly better; "
+                                   "linear for 16-bit), srgb, linear, or an exponent such as 2.2; printed with the "
+                                   "evidence and recorded", parse=parse_gamma_text, kind=str, metavar="G")
     compression: str = option("auto", "linear/ EXRs: auto (lossless ZIP for the frames it shrinks to 1/1.8 or "
                                       "less, such as frames from 8/16-bit files), zip, none", choices=COMPRESSIONS)
     half: bool = option(False, "half-float EXRs: half the disk, but lossy (11-bit mantissa)", kind=bool)

@@ -112,7 +112,7 @@ def test_eval_cli_json(tmp_path, capsys):
     assert set(data) == {"normals", "lights"}
     assert data["normals"]["mean_deg"] == pytest.approx(7.5, abs=0.05)
     empty = Session.create(tmp_path / "empty")
-    assert main(["eval", str(empty.root), "--json"]) == 0
+    assert main(["eval", str(empty.root), "--json"]) == 1   # nothing evaluated is not a pass
     assert json.loads(capsys.readouterr().out) == {}
     assert main(["eval", str(tmp_path / "nope")]) == 1
     assert "no such session folder" in capsys.readouterr().err

@@ -37,6 +37,23 @@ def raw_session(root, frames=FRAMES, shape=SHAPE):
     return session.root
 
 
+def _default_sigint():
+    """In a child before exec: Ctrl-C's default disposition. A shell starts a background job
+    (``pytest &``, ``nohup``) with SIGINT ignored, and an ignored signal stays ignored across
+    exec: Python would then install no KeyboardInterrupt handler and the child would ignore
+    the Ctrl-C the test sends."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.fixture
+def sigint_raises():
+    """SIGINT raises KeyboardInterrupt in this process while the test runs (whatever the
+    disposition pytest was started with), and is put back after."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 def psrig(*args, **kwargs):
     return subprocess.Popen([sys.executable, "-m", "pipeline", *map(str, args)], cwd=REPO,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kwargs)
@@ -60,7 +77,7 @@ def decoded(root):
 
 def test_ctrl_c_during_the_first_decode_is_resumed(tmp_path):
     root = raw_session(tmp_path / "s")
-    proc = psrig("decode", root, "--jobs", "2", start_new_session=True)
+    proc = psrig("decode", root, "--jobs", "2", start_new_session=True, preexec_fn=_default_sigint)
     wait_for(lambda: len(decoded(root)) >= 4, proc, what="4 decoded frames")
     os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C: the terminal signals the whole process group
     out, err = proc.communicate(timeout=120)
@@ -240,7 +257,7 @@ def test_a_bracketed_decode_killed_mid_way_resumes_from_the_merges_done(tmp_path
                               read_image(pristine / "linear" / f"{group}.exr")), group
 
 
-def test_a_ctrl_c_inside_a_commit_is_held_until_it_is_reported():
+def test_a_ctrl_c_inside_a_commit_is_held_until_it_is_reported(sigint_raises):
     # the bookkeeping of a committed frame runs to its end; the Ctrl-C is raised right after
     from pipeline.decode.pool import _deferred_interrupt
 
@@ -253,3 +270,14 @@ def test_a_ctrl_c_inside_a_commit_is_held_until_it_is_reported():
         steps.append("after")   # never reached: the held Ctrl-C is raised at the block's end
     assert steps == ["reported"]
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_the_signal_tests_pass_when_started_with_sigint_ignored():
+    # what `python -m pytest &` or `nohup` does to a test run: SIGINT ignored from the start
+    def ignore_sigint():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                           f"{__file__}::test_a_ctrl_c_inside_a_commit_is_held_until_it_is_reported"],
+                          cwd=REPO, capture_output=True, text=True, timeout=120, preexec_fn=ignore_sigint)
+    assert done.returncode == 0, done.stdout + done.stderr

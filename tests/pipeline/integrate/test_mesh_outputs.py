@@ -144,3 +144,17 @@ def test_the_command_lists_the_integration_methods_it_checks():
     from pipeline.integrate import METHODS
 
     assert sorted(METHOD_NAMES) == sorted(METHODS)
+
+
+def test_depth_exr_is_in_the_unit_given_like_the_meshes(tmp_path):
+    session, mask, _ = colour_session(tmp_path)
+    normals_session(session, method="lambert", show_progress=False)
+    integrate_session(session)
+    pixels = read_image(session.path("depth/depth.exr"))[:, :, 0]
+    assert yaml.safe_load(session.path("depth/integration.yaml").read_text())["depth_unit"] == "px"
+    integrate_session(session, pixel_size=0.25, unit="mm")
+    scaled = read_image(session.path("depth/depth.exr"))[:, :, 0]
+    finite = np.isfinite(pixels)
+    np.testing.assert_allclose(scaled[finite], 0.25 * pixels[finite], rtol=1e-5, atol=1e-6)
+    info = yaml.safe_load(session.path("depth/integration.yaml").read_text())
+    assert info["depth_unit"] == "mm" and "in mm" in info["depth"]

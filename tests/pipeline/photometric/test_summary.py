@@ -49,3 +49,12 @@ def test_rescaled_frames_are_named_and_a_decode_curve_is_suspected_too():
     assert normals_warnings({"ok": 100}, 12, {}, {"verdict": "consistent", "max_deviation": 0.02}) == []
     line = normals_summary({"pixels": 100, "status_counts": {"ok": 100}, "frame_gains": one})
     assert line.endswith("; 1 frame(s) rescaled to the others' brightness")
+
+
+def test_a_healthy_status_share_over_a_doubtful_result_leads_with_the_doubt():
+    many = {"verdict": "rescaled", "rescaled": {f"f{k}": 0.5 + k / 10 for k in range(8)}, "uncalibrated": True}
+    line = normals_summary({"pixels": 100, "status_counts": {"ok": 96, "too_few": 4}, "frame_gains": many})
+    assert line.startswith("100 pixels, normals doubtful (the frames' brightness does not follow the lights' "
+                           "intensities: the whole map may be tilted; see the warning); fit status: ok 96.0%")
+    fine = normals_summary({"pixels": 100, "status_counts": {"ok": 100}})
+    assert fine.startswith("100 pixels: ok 100")
