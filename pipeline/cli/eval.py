@@ -12,7 +12,9 @@ def register(subparsers):
         "eval", help="errors against ground truth, when the session has it",
         description="Score normals (angular error), lights (per-light angle) and depth (mean "
                     "absolute error after an offset or scale fit) against the session's ground "
-                    "truth; writes normals/eval.yaml and normals/error.png.")
+                    "truth; writes normals/eval.yaml and normals/error.png. Also shows the normals "
+                    "stage's held-out-light prediction (normals/prediction.yaml), which needs no "
+                    "ground truth.")
     parser.add_argument("session", metavar="SESSION", help="session folder")
     parser.add_argument("--json", action="store_true", help="print the numbers as JSON")
     parser.add_argument("--max-deg", type=float, default=30.0,
@@ -23,15 +25,21 @@ def register(subparsers):
 
 def run(args):
     from ..evaluate import evaluate_session
+    from ..photometric.prediction import prediction_line, read_prediction
 
     session = open_session(args.session, args)
     result = evaluate_session(session, max_deg=args.max_deg)
+    held_out = read_prediction(session)
     if args.json:
-        print(json.dumps(result, indent=2))
-    elif not result:
-        print(f"eval: {session.root}: nothing to evaluate (no ground truth, or no result for it)")
+        print(json.dumps(dict(result, **({"prediction": held_out} if held_out else {})), indent=2))
+        return 0
+    if not result:
+        print(f"eval: {session.root}: nothing to evaluate against ground truth (no ground truth, or no result "
+              "for it)")
     else:
         print(format_summary(result))
+    if held_out:
+        print(prediction_line(held_out))
     return 0
 
 

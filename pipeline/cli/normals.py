@@ -38,6 +38,10 @@ def register(sub):
                         help="frames that see the object shifted against the others (it or the camera "
                              "moved): auto (the default) aligns them by their measured shift and solves "
                              "again where the object's shading pins position, off only says")
+    parser.add_argument("--holdout-folds", type=int, default=5,
+                        help="held-out-light check: refit the biquadratic and Lambertian models with each "
+                             "of this many folds of the lights held back and score their prediction of "
+                             "the held-back frames (default 5; 0 = off; needs at least 6 lights)")
     parser.add_argument("--force", action="store_true", help="run even when the stage is up to date")
     parser.set_defaults(func=run)
 
@@ -60,7 +64,7 @@ def run(args):
                              lights_model=args.lights_model, near_depth=args.near_depth == "on",
                              specular_anchor=_switch(args.specular_anchor), frame_gains=_switch(args.frame_gains),
                              t_shadow=args.t_shadow, reject_k=args.reject_k, shape_prior=args.shape_prior,
-                             align=args.align_frames)
+                             align=args.align_frames, holdout_folds=args.holdout_folds)
     if record is None:
         print(f"{session.root}: normals up to date (use --force to rerun)")
         return 0

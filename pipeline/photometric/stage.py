@@ -18,13 +18,16 @@ import numpy as np
 from ..errors import StageError
 from ..imageio import read_image, read_mask, write_image, write_mask, write_normal_png
 from ..lightsio import read_lights_yaml
-from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS
+from ..atomic import atomic_write_text
+from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, PREDICTION, PREDICTION_IMAGES
 from ..progress import progress as progress_bar
-from ..yamlio import plain
+from ..yamlio import dump_yaml, plain
+from .anchor import scale_cone
 from .estimate import estimate_normals
 from .methods import STATUS, STATUS_NAMES, STATUS_PALETTE
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
+from .prediction import FOLDS, held_out_prediction
 from .registration import align_frames, alignable, check_registration
 from .summary import normals_warnings
 
@@ -142,11 +145,13 @@ def light_model(lights, requested="auto"):
     return "directional"
 
 
-def stage_params(method, lights_model, options, near_depth=True, align="auto"):
+def stage_params(method, lights_model, options, near_depth=True, align="auto", holdout_folds=FOLDS):
     """The stage record's parameters: method, the options given (not None), the light model
-    when not 'auto', ``near_depth`` when off and ``align`` when not 'auto' (so records of earlier
-    versions stay current)."""
+    when not 'auto', ``near_depth`` when off, ``align`` and ``holdout_folds`` when not their
+    defaults (so records of earlier versions stay current)."""
     params = {"method": method, **{k: v for k, v in sorted(options.items()) if v is not None}}
+    if holdout_folds != FOLDS:
+        params["holdout_folds"] = int(holdout_folds)
     if align != "auto":
         params["align"] = align
     if lights_model != "auto":
@@ -166,7 +171,7 @@ def _read_stage_lights(session, frames):
 
 
 def begin_normals(session, *, method="biquadratic", force=False, lights_model="auto", near_depth=True, align="auto",
-                  **options):
+                  holdout_folds=FOLDS, **options):
     """Start a normals run: its inputs, whether it is up to date, and the lights it uses.
 
     Returns a :class:`NormalsRun`, or None when the stage record still matches (and not
@@ -174,7 +179,7 @@ def begin_normals(session, *, method="biquadratic", force=False, lights_model="a
     """
     frames = _object_frames(session)
     mask_rel = session.manifest["lights"].get("object_mask")
-    params = stage_params(method, lights_model, options, near_depth, align)
+    params = stage_params(method, lights_model, options, near_depth, align, holdout_folds)
     inputs = _inputs(session, frames, mask_rel)
     if not force and session.stage_is_current(STAGE, params, inputs):
         return None
@@ -239,7 +244,7 @@ def object_mask(session, run, images):
 
 
 def normals_session(session, *, method="biquadratic", force=False, show_progress=True,
-                    lights_model="auto", near_depth=True, align="auto", **options):
+                    lights_model="auto", near_depth=True, align="auto", holdout_folds=FOLDS, **options):
     """Run the normals stage on a session; returns the stage record (None when up to date).
 
     ``options`` go to :func:`pipeline.photometric.estimate_normals` (t_low, t_shadow, reject_k,
@@ -252,22 +257,30 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     (:func:`pipeline.photometric.registration.check_registration`); ``align`` 'auto' aligns
     the frames found moved and solves again where the object pins position well
     (:func:`pipeline.photometric.registration.alignable`), 'off' only says.
+    Last, ``holdout_folds`` folds of the lights are held back in turn and the biquadratic and
+    Lambertian fits scored on predicting them (:mod:`pipeline.photometric.prediction`;
+    ``normals/prediction.yaml``, ``normals/prediction.exr``); 0 skips it.
     """
+    if holdout_folds and int(holdout_folds) < 2:
+        raise StageError(f"normals: --holdout-folds must be 0 (off) or at least 2, got {holdout_folds}")
     if align not in ALIGN_MODES:
         raise StageError(f"normals: align must be one of {', '.join(ALIGN_MODES)}, got {align!r}")
     run = begin_normals(session, method=method, force=force, lights_model=lights_model, near_depth=near_depth,
-                        align=align, **options)
+                        align=align, holdout_folds=holdout_folds, **options)
     if run is None:
         return None
     channels = ChannelSums()
     images, valid = load_object_stack(session, run.frames, run.lights, channels)
     mask = object_mask(session, run, images)
     passes = PASSES if run.model == "near" and near_depth else 0
+    solved_with = {}
     with progress_bar(total=int(mask.sum()) * (1 + passes), desc="normals", unit="px",
                       disable=not show_progress) as bar:
         def solve(directions, pixels):
-            return estimate_normals(images, directions, pixels, method=method, valid=valid,
-                                    progress=bar.update if pixels is mask else None, **run.options)
+            out = estimate_normals(images, directions, pixels, method=method, valid=valid,
+                                   progress=bar.update if pixels is mask else None, **run.options)
+            solved_with[id(out)] = directions   # the held-out check renders at the kept depth
+            return out
 
         lights = run.solver_lights(images.shape[1:])
         if run.model == "near":
@@ -276,7 +289,20 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
             result, depth = solve(lights, mask), None
     # after the solve: every frame against the model's rendering of it (the object or camera moved?)
     result, registration = _register(images, valid, lights, mask, result, method, run.options, align)
-    return record_normals(session, run, result, channels, near_depth=depth, registration=registration)
+    prediction = None
+    if holdout_folds:
+        prediction = held_out_prediction(images, valid, _fitted_lights(solved_with.get(id(result), lights), result),
+                                         mask, options=run.options, folds=holdout_folds)
+    return record_normals(session, run, result, channels, near_depth=depth, registration=registration,
+                          prediction=prediction)
+
+
+def _fitted_lights(lights, result):
+    """The lights the kept solve fitted with: the specular anchor's corrected cone, when it
+    corrected one (the held-out refits run without the anchor, on these lights)."""
+    if result.options.get("anchor") == "corrected" and not isinstance(lights, PointLights):
+        return scale_cone(np.asarray(lights, float), float(result.options["cone_scale"]))
+    return lights
 
 
 def _register(images, valid, lights, mask, result, method, options, align):
@@ -298,15 +324,19 @@ def _register(images, valid, lights, mask, result, method, options, align):
     return result, found
 
 
-def record_normals(session, run, result, channels, near_depth=None, registration=None):
+def record_normals(session, run, result, channels, near_depth=None, registration=None, prediction=None):
     """Write ``normals/`` from a :class:`PhotometricResult` and record the stage; returns the record.
 
     ``channels`` is the :class:`ChannelSums` gathered while the frames were read (the albedo's
     colour); ``near_depth`` :func:`pipeline.photometric.near_depth.refine_near_depth`'s report,
     kept when it ran a pass; ``registration`` :func:`pipeline.photometric.registration.check_registration`'s
-    finding (by frame index), kept by frame id.
+    finding (by frame index), kept by frame id; ``prediction``
+    :func:`pipeline.photometric.prediction.held_out_prediction`'s finding (by frame index),
+    written to ``normals/prediction.yaml`` (and its worst light's images to
+    ``normals/prediction.exr``) and summed up in the record.
     """
     outputs = _write_outputs(session, result, channels)
+    outputs += _write_prediction(session, prediction, run.frames)
     counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
     extra = {"pixels": int(result.mask.sum()), "status_counts": counts, **run.extra()}
     if near_depth is not None and near_depth["passes"]:
@@ -317,6 +347,8 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     if result.options.get("outline_check"):
         extra["outline_check"] = plain(result.options["outline_check"])
     extra.update(registration_record(registration, run.frames))
+    if prediction is not None:
+        extra["prediction"] = prediction_record(prediction, run.frames)
     transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
     extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer,
                                          registration=extra.get("registration"))
@@ -324,6 +356,8 @@ def record_normals(session, run, result, channels, near_depth=None, registration
                                 **extra)
 
 
+#: the channels of normals/prediction.exr, in order (prediction.captured, ...)
+PREDICTION_CHANNELS = ("captured", "biquadratic", "lambert")
 #: the solver's options the stage record keeps (after the policy filled them in)
 SELECTION_KEYS = ("selection", "t_low", "t_shadow", "reject_k", "consensus", "scale_floor", "shape_prior",
                   "shared_shape")
@@ -359,6 +393,40 @@ def registration_record(found, frames):
     if found.get("run_from") is not None:
         found["run_from"] = frames[int(found["run_from"])]["id"]
     return {"registration": plain(found)}
+
+
+def prediction_record(found, frames):
+    """The stage record's ``prediction`` entry: verdict, overall errors and the worst light (by
+    frame id); the per-light table is in ``normals/prediction.yaml``."""
+    keep = {k: v for k, v in found.items() if k not in ("lights", "images")}
+    if "worst_light" in keep:
+        keep["worst_light"] = frames[int(keep["worst_light"])]["id"]
+        worst = found["lights"][int(found["worst_light"])]
+        keep["worst_light_pct"] = {k: worst[k] for k in ("biquadratic_pct", "lambert_pct")}
+    return plain(keep)
+
+
+def _write_prediction(session, found, frames):
+    """normals/prediction.yaml (every light by frame id) and prediction.exr (the worst light's
+    captured and predicted images on the sample grid); the files' names ([] when none)."""
+    if found is None:
+        return []
+    table = dict(found)
+    images = table.pop("images", None)
+    if "lights" in table:
+        table["lights"] = [dict(entry, frame=frames[entry["light"]]["id"], light=int(frames[entry["light"]]["light"]))
+                           for entry in table["lights"]]
+        table["worst_light"] = frames[int(table["worst_light"])]["id"]
+    atomic_write_text(session.path(PREDICTION), dump_yaml(plain(table)))
+    written = [PREDICTION]
+    if images:
+        stack = np.stack([images[k] for k in PREDICTION_CHANNELS], axis=2).astype(np.float32)
+        write_image(session.path(PREDICTION_IMAGES), stack,
+                    channel_names=tuple(f"prediction.{k}" for k in PREDICTION_CHANNELS))
+        written.append(PREDICTION_IMAGES)
+    elif session.path(PREDICTION_IMAGES).is_file():
+        session.path(PREDICTION_IMAGES).unlink()   # an earlier run's: not of this fit
+    return written
 
 
 def _write_outputs(session, result, channels):

@@ -13,6 +13,7 @@ from ..paths import LIGHTS
 from .frame_gains import UNCALIBRATED_SHARE
 from .methods import share_text
 from .outline import SEEN_WHOLE, mirrored_axes, transposed_axes
+from .prediction import prediction_line
 
 __all__ = ["normals_warnings", "normals_summary", "WARN_SHARES"]
 
@@ -170,7 +171,9 @@ def normals_summary(record):
     gains = f"; {len(rescaled)} frame(s) rescaled to the others' brightness" if rescaled else ""
     found = record.get("registration") or {}
     aligned = f"; {len(found['moved'])} moved frame(s) aligned to the others" if found.get("aligned") else ""
-    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{aligned}{flagged}"
+    held = prediction_line(record.get("prediction"))
+    held = f"; {held}" if held else ""
+    return f"{record.get('pixels', 0)} pixels: {shares}{cone}{gains}{aligned}{flagged}{held}"
 
 
 def _range_text(anchor):

@@ -21,21 +21,23 @@ from ..atomic import atomic_write_text
 from ..errors import StageError
 from ..evaluate import ERROR_TOP_DEG
 from ..imageio import read_image, write_image
-from ..paths import (ALBEDO, DEPTH, LIGHTS, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, REPORT,
-                     RESIDUAL, SHADED, STATUS_MAP)
+from ..paths import (ALBEDO, DEPTH, LIGHTS, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, PREDICTION,
+                     PREDICTION_IMAGES, REPORT, RESIDUAL, SHADED, STATUS_MAP)
 from ..session import STAGES, now_iso
 from . import html, sections
 from .images import robust_max, shrink, tone_map
 from .maps import Figure, bar_figures, choose_scales, map_figures, read_maps
 from .mesh_view import mesh_payload, write_mesh_view
+from .prediction import prediction_section
 
 __all__ = ["report_session", "INDEX", "THUMB_SIDE", "LAYOUT"]
 
 INDEX = REPORT
 THUMB_SIDE = 160
 #: the page's layout version: a report of an older layout is rebuilt
-LAYOUT = 2
-_MAPS = (NORMALS, NORMALS_MASK, ALBEDO, RESIDUAL, STATUS_MAP, OBSERVATIONS, LIT_OBSERVATIONS, DEPTH, SHADED)
+LAYOUT = 3
+_MAPS = (NORMALS, NORMALS_MASK, ALBEDO, RESIDUAL, STATUS_MAP, OBSERVATIONS, LIT_OBSERVATIONS, DEPTH, SHADED,
+         PREDICTION, PREDICTION_IMAGES)
 
 
 def _sources(session):
@@ -156,6 +158,9 @@ def _page(session, scores, max_deg, write):
         body.append(("Errors against ground truth",
                      sections.scores_section(scores) + sections.charts_section(maps, scales["error"])))
     body.append(("Results", html.figures([f for f in figures if f.key not in depth_keys], bars)))
+    if session.path(NORMALS).is_file():
+        body.append(("Held-out lights: does the fit predict frames it was not given?",
+                     prediction_section(session, write)))
     scripts = ()
     depth_figs = [f for f in figures if f.key in depth_keys]
     if depth_figs or maps.depth is not None:
