@@ -29,6 +29,7 @@ from .images import robust_max, shrink, tone_map
 from .maps import Figure, bar_figures, choose_scales, map_figures, read_maps
 from .mesh_view import mesh_payload, write_mesh_view
 from .prediction import prediction_section
+from .relight_view import relight_payload, relight_section, write_relight_view
 
 __all__ = ["report_session", "INDEX", "THUMB_SIDE", "LAYOUT"]
 
@@ -158,17 +159,19 @@ def _page(session, scores, max_deg, write):
         body.append(("Errors against ground truth",
                      sections.scores_section(scores) + sections.charts_section(maps, scales["error"])))
     body.append(("Results", html.figures([f for f in figures if f.key not in depth_keys], bars)))
+    scripts = ()
     if session.path(NORMALS).is_file():
+        relit, scripts = _relighting(session, lights)
+        body.append(("Relighting: the fitted model under a light you move", relit))
         body.append(("Held-out lights: does the fit predict frames it was not given?",
                      prediction_section(session, write)))
-    scripts = ()
     depth_figs = [f for f in figures if f.key in depth_keys]
     if depth_figs or maps.depth is not None:
         view = ""
         payload = None if maps.depth is None else mesh_payload(maps.depth, maps.normals, maps.albedo,
                                                                _integration_K(session))
         if payload is not None:
-            scripts = write_mesh_view(session.path("report"), "depth", payload)
+            scripts = scripts + write_mesh_view(session.path("report"), "depth", payload)
             view = sections.mesh_section("depth", payload, session.stage("integrate"))
         body.append(("Depth", html.figures(depth_figs, bars) + view))
     body.append(("Lights", sections.lights_section(session, lights, scores)))
@@ -179,6 +182,25 @@ def _page(session, scores, max_deg, write):
         body.append((f"Frames: {kind} ({len(thumbs)})", html.figures(thumbs, css="thumb")))
     body.append(("Stage records", sections.details_section(session)))
     return html.page(f"psrig report: {session.root.name}", body, scripts), scripts
+
+
+def _relighting(session, lights):
+    """The relighting view's HTML and its scripts (a paragraph and none when the model cannot
+    be read)."""
+    from ..errors import InputError
+    from ..relight import read_model
+
+    try:
+        model = read_model(session)
+    except InputError as err:
+        return f"<p>No relighting view: {html.escape(str(err))}</p>", ()
+    frames = [(f["id"], f["light"], f"frames/{f['id']}.png") for f in session.stage_frames("object")
+              if f.get("light") is not None and session.linear_path(f).is_file()
+              and lights is not None and f["light"] < len(lights)]
+    payload = relight_payload(model, None if lights is None else lights.directions, frames)
+    if payload is None:
+        return "<p>No relighting view: the normals have no object pixel.</p>", ()
+    return relight_section("model", payload), write_relight_view(session.path("report"), "model", payload)
 
 
 def _integration_K(session):
