@@ -162,7 +162,6 @@ def _run_models(args):
 def _run_reflectometry(args):
     from ..experiments import reflectometry as exp
     from ..experiments.merl import find_merl_files
-    from .reflectometry import floats
 
     started = time.perf_counter()
     roughness = parse_floats(args.roughness, "--roughness")
@@ -170,7 +169,9 @@ def _run_reflectometry(args):
         raise InputError(f"--roughness: every m must be in (0, 1], got {args.roughness!r}")
     if args.size < 16:
         raise InputError(f"--size must be at least 16, got {args.size}")
-    light = floats(args.light, "--light", 3) if args.light else exp.DEFAULT_LIGHT
+    light = parse_floats(args.light, "--light") if args.light else exp.DEFAULT_LIGHT
+    if len(light) != 3:
+        raise InputError(f"--light: expected 3 comma-separated numbers, got {args.light!r}")
     specs = [f"{name}:{m:g}" for name in ("cook-torrance", "ward") for m in roughness]
     specs += [str(f) for f in (find_merl_files(args.folder) if args.folder else ())]
     materials = [exp.parse_material(spec)[::-1] for spec in specs]

@@ -20,7 +20,7 @@ def register(sub):
 
 
 def run(args):
-    from ..export import export_relight
+    from ..relight import export_relight
     from ..session import Session
 
     if not args.relight:

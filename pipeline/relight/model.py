@@ -13,16 +13,16 @@ view v = (0, 0, 1)) is, per colour channel c::
 
 (rho = 1 for a session fitted with another method than the biquadratic: Lambert). The report's
 relighting view (:mod:`pipeline.report.relight_view`) and ``psrig export --relight``
-(:mod:`pipeline.export`) use this; :func:`shade` is the reference both are tested against.
+(:mod:`pipeline.relight.export`) use this; :func:`shade` is the reference both are tested against.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
-from .imageio import read_image, read_mask
-from .paths import ALBEDO, NORMALS, NORMALS_MASK
+from ..errors import InputError
+from ..imageio import read_image, read_mask
+from ..paths import ALBEDO, NORMALS, NORMALS_MASK
 
 __all__ = ["FittedModel", "read_model", "shade", "MODES", "MATERIAL", "BRDF"]
 

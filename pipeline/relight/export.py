@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write_text
-from .errors import InputError
-from .imageio import write_image, write_mask
-from .relight import MATERIAL, read_model, shade
+from ..atomic import atomic_write_text
+from ..errors import InputError
+from ..imageio import write_image, write_mask
+from .model import MATERIAL, read_model, shade
 
 __all__ = ["export_relight", "FORMATS", "COEFFICIENTS", "FORMULA", "SPEC_NAME"]
 
