@@ -288,7 +288,8 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
         else:
             result, depth = solve(lights, mask), None
     # after the solve: every frame against the model's rendering of it (the object or camera moved?)
-    result, registration = _register(images, valid, lights, mask, result, method, run.options, align)
+    result, registration, (images, valid) = _register(images, valid, lights, mask, result, method, run.options,
+                                                      align)
     prediction = None
     if holdout_folds:
         prediction = held_out_prediction(images, valid, _fitted_lights(solved_with.get(id(result), lights), result),
@@ -308,7 +309,8 @@ def _fitted_lights(lights, result):
 def _register(images, valid, lights, mask, result, method, options, align):
     """Every frame against the normals' rendering of it (the object or camera moved?); with
     ``align`` 'auto', the moved frames aligned and the normals solved again. Returns the
-    result to keep and the check's finding."""
+    result to keep, the check's finding and the (images, valid) it was solved from (the aligned
+    copies when frames were aligned: the held-out check predicts those)."""
     def solve(stack, usable, chosen=slice(None)):
         return estimate_normals(stack, lights[chosen], mask, method=method, valid=usable, **options)
 
@@ -316,12 +318,13 @@ def _register(images, valid, lights, mask, result, method, options, align):
                                resolve=lambda keep: solve(images[keep], valid[keep], keep))
     if found.get("moved"):
         if align == "auto" and alignable(found):
-            result = solve(*align_frames(images, valid, found["moved"]))
+            images, valid = align_frames(images, valid, found["moved"])
+            result = solve(images, valid)
             found["aligned"] = True
         else:
             found["not_aligned"] = "psrig normals --align-frames off" if align != "auto" else \
                 f"the object's shading pins position only to about {found['median_departure_px']:.1f} px"
-    return result, found
+    return result, found, (images, valid)
 
 
 def record_normals(session, run, result, channels, near_depth=None, registration=None, prediction=None):
@@ -410,6 +413,11 @@ def _write_prediction(session, found, frames):
     """normals/prediction.yaml (every light by frame id) and prediction.exr (the worst light's
     captured and predicted images on the sample grid); the files' names ([] when none)."""
     if found is None:
+        # not checked this run (--holdout-folds 0, the tiled stage): an earlier run's files are
+        # not of this fit
+        for rel in (PREDICTION, PREDICTION_IMAGES):
+            if session.path(rel).is_file():
+                session.path(rel).unlink()
         return []
     table = dict(found)
     images = table.pop("images", None)

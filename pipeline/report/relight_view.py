@@ -97,14 +97,30 @@ def write_relight_view(folder, key, payload):
     return data_name, VIEWER.name
 
 
+def _nearest_frame(payload):
+    """The thumbnail of the captured frame whose light is nearest the view's start (None without
+    frames)."""
+    lights, frames = payload["lights"], payload["frames"]
+    known = [f for f in frames if f["light"] < len(lights)]
+    if not known:
+        return None
+    start = np.asarray(payload["light"], float)
+    return max(known, key=lambda f: float(np.dot(lights[f["light"]], start)))["thumb"]
+
+
 def relight_section(key, payload):
     """The view's canvases, mode buttons, exposure and readout (the scripts are added to the page)."""
     scale = max(1, 480 // max(payload["width"], payload["height"]))
     width, height = payload["width"] * scale, payload["height"] * scale
     fitted = payload["method"] == "biquadratic"
     modes = [("model", "the model" if fitted else f"the model ({html.escape(payload['method'])}: Lambertian)"),
-             ("diffuse", "diffuse only (albedo &times; n&middot;l)"), ("normals", "normals, fixed material"),
-             ("frame", "nearest captured frame")]
+             ("diffuse", "diffuse only (albedo &times; n&middot;l)"), ("normals", "normals, fixed material")]
+    start = _nearest_frame(payload)
+    frame = ""
+    if start is not None:
+        modes.append(("frame", "nearest captured frame"))
+        frame = (f'<img id="relight-{key}-frame" src="{html.escape(start, quote=True)}" alt="nearest captured frame" '
+                 f'hidden style="width:{width}px;height:{height}px;border:1px solid #ccc">')
     buttons = " ".join(f'<label><input type="radio" name="relight-{key}-mode" value="{m}"'
                        f'{" checked" if m == "model" else ""}> {text}</label>' for m, text in modes)
     note = (f"The fitted model per pixel (every {payload['step']} pixel(s), {payload['pixels']} pixels), "
@@ -116,8 +132,7 @@ def relight_section(key, payload):
             f'width="{payload["width"]}" height="{payload["height"]}" tabindex="0" '
             f'style="width:{width}px;height:{height}px;image-rendering:pixelated;touch-action:none;'
             f'border:1px solid #ccc;cursor:crosshair" aria-label="relit object"></canvas>'
-            f'<img id="relight-{key}-frame" alt="nearest captured frame" hidden '
-            f'style="width:{width}px;height:{height}px;border:1px solid #ccc"></div>'
+            f'{frame}</div>'
             f'<div><canvas id="relight-{key}-dome" class="psrig-dome" width="200" height="200" '
             f'style="touch-action:none;cursor:crosshair" aria-label="light direction: drag"></canvas>'
             f'<p id="relight-{key}-readout" style="font-family:monospace;font-size:0.85em"></p>'

@@ -112,9 +112,32 @@ def test_the_normals_stage_records_it_and_eval_and_the_report_show_it(tmp_path, 
 
 def test_holdout_folds_zero_skips_it_and_one_is_refused(tmp_path):
     session = decoded(tmp_path)
+    normals_session(session, show_progress=False)
+    assert read_prediction(Session.open(session.root)) is not None
     record = normals_session(session, show_progress=False, holdout_folds=0)
     assert "prediction" not in record and record["params"]["holdout_folds"] == 0
+    # the earlier run's files are gone: they were not of this fit
     assert read_prediction(Session.open(session.root)) is None
+    assert not session.path("normals/prediction.exr").exists()
     from pipeline.errors import StageError
     with pytest.raises(StageError, match="holdout-folds"):
         normals_session(session, show_progress=False, holdout_folds=1, force=True)
+
+
+def test_near_lights_are_scored_with_their_per_pixel_directions_and_falloff():
+    from pipeline.photometric import PointLights
+
+    normals, mask = sphere_normals(48)
+    directions = hemisphere_lights(16, seed=4, min_elevation_deg=35)
+    lights = PointLights(directions * 150.0, mask.shape)
+    flat = np.flatnonzero(mask)
+    towards, falloff = lights.at(flat)                                   # (N, K, 3), (N, K)
+    n = normals.reshape(-1, 3)[flat]
+    images = np.zeros((16,) + mask.shape, np.float32)
+    images.reshape(16, -1)[:, flat] = (0.5 * falloff * np.maximum(np.einsum("nc,nkc->nk", n, towards), 0)).T
+    near = held_out_prediction(images, None, lights, mask, folds=4)
+    assert near["verdict"] == "checked"
+    assert near["overall"]["lambert_pct"] < 2.0 and near["overall"]["biquadratic_pct"] < 2.0
+    # the same images read as distant lights miss the falloff and the directions' spread
+    far = held_out_prediction(images, None, directions, mask, folds=4)
+    assert far["overall"]["lambert_pct"] > 2 * near["overall"]["lambert_pct"]

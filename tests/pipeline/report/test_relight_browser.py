@@ -86,6 +86,9 @@ def test_dragging_moves_the_light_with_mouse_and_touch(glossy_report):
     url = glossy_report.path("report/index.html").resolve().as_uri()
     with open_page(url) as (page, problems):
         page.wait_for_selector("canvas.psrig-relight[data-drawn='1']", timeout=20000)
+        broken = page.eval_on_selector_all("img", "imgs => imgs.filter(i => !i.complete || !i.naturalWidth)"
+                                                  ".map(i => i.src)")
+        assert broken == []   # the hidden nearest-frame picture too
         dome = page.locator("#relight-model-dome")
         dome.scroll_into_view_if_needed()
         box = dome.bounding_box()
