@@ -31,7 +31,7 @@ from .prediction import FOLDS, held_out_prediction
 from .registration import align_frames, alignable, check_registration
 from .summary import normals_warnings
 
-__all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack",
+__all__ = ["normals_session", "begin_normals", "record_normals", "predict_held_out", "NormalsRun", "ChannelSums", "load_object_stack",
            "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "registration_record",
            "STAGE",
            "LIGHT_MODELS", "ALIGN_MODES", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS"]
@@ -177,6 +177,8 @@ def begin_normals(session, *, method="biquadratic", force=False, lights_model="a
     Returns a :class:`NormalsRun`, or None when the stage record still matches (and not
     ``force``). Raises StageError for missing frames or lights.
     """
+    if holdout_folds and int(holdout_folds) < 2:
+        raise StageError(f"normals: --holdout-folds must be 0 (off) or at least 2, got {holdout_folds}")
     frames = _object_frames(session)
     mask_rel = session.manifest["lights"].get("object_mask")
     params = stage_params(method, lights_model, options, near_depth, align, holdout_folds)
@@ -261,8 +263,6 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     Lambertian fits scored on predicting them (:mod:`pipeline.photometric.prediction`;
     ``normals/prediction.yaml``, ``normals/prediction.exr``); 0 skips it.
     """
-    if holdout_folds and int(holdout_folds) < 2:
-        raise StageError(f"normals: --holdout-folds must be 0 (off) or at least 2, got {holdout_folds}")
     if align not in ALIGN_MODES:
         raise StageError(f"normals: align must be one of {', '.join(ALIGN_MODES)}, got {align!r}")
     run = begin_normals(session, method=method, force=force, lights_model=lights_model, near_depth=near_depth,
@@ -290,12 +290,20 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     # after the solve: every frame against the model's rendering of it (the object or camera moved?)
     result, registration, (images, valid) = _register(images, valid, lights, mask, result, method, run.options,
                                                       align)
-    prediction = None
-    if holdout_folds:
-        prediction = held_out_prediction(images, valid, _fitted_lights(solved_with.get(id(result), lights), result),
-                                         mask, options=run.options, folds=holdout_folds)
+    prediction = predict_held_out(run, images, valid, solved_with.get(id(result), lights), result)
     return record_normals(session, run, result, channels, near_depth=depth, registration=registration,
                           prediction=prediction)
+
+
+def predict_held_out(run, images, valid, lights, result):
+    """The held-out-light check of ``run`` (None when its ``holdout_folds`` is 0) on the stack
+    (K, H, W) the result was solved from (memory-mapped is fine: a grid window is read), with
+    the ``lights`` it was solved with."""
+    folds = run.params.get("holdout_folds", FOLDS)
+    if not folds:
+        return None
+    return held_out_prediction(images, valid, _fitted_lights(lights, result), result.mask, options=run.options,
+                               folds=folds)
 
 
 def _fitted_lights(lights, result):
@@ -401,7 +409,8 @@ def registration_record(found, frames):
 def prediction_record(found, frames):
     """The stage record's ``prediction`` entry: verdict, overall errors and the worst light (by
     frame id); the per-light table is in ``normals/prediction.yaml``."""
-    keep = {k: v for k, v in found.items() if k not in ("lights", "images")}
+    # no time: the serial and the tiled stage write the same bytes (the stage's seconds cover it)
+    keep = {k: v for k, v in found.items() if k not in ("lights", "images", "seconds")}
     if "worst_light" in keep:
         keep["worst_light"] = frames[int(keep["worst_light"])]["id"]
         worst = found["lights"][int(found["worst_light"])]
@@ -419,7 +428,7 @@ def _write_prediction(session, found, frames):
             if session.path(rel).is_file():
                 session.path(rel).unlink()
         return []
-    table = dict(found)
+    table = {k: v for k, v in found.items() if k != "seconds"}
     images = table.pop("images", None)
     if "lights" in table:
         table["lights"] = [dict(entry, frame=frames[entry["light"]]["id"], light=int(frames[entry["light"]]["light"]))

@@ -41,7 +41,8 @@ from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gathere
                      scatter_chunk, solve_chunk)
 from .estimate import check_lights, check_plan_frames, plan_solve, result_from_maps
 from .registration import check_registration
-from .stage import STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals
+from .stage import (STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, predict_held_out,
+                    record_normals)
 
 __all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
            "tile_context", "frame_check", "SCRATCH", "WHOLE_IMAGE"]
@@ -303,6 +304,9 @@ def assemble_normals(plan, tile_paths=None):
     saved = plan.scratch(CHANNELS)
     channels = ChannelSums(np.load(saved) if saved.is_file() else None)   # none saved: grey frames
     result = result_from_maps(out, mask, plan.solve.method, options, shared)
-    record = record_normals(session, plan.run, result, channels, registration=_registration(plan, result))
+    prediction = predict_held_out(plan.run, np.load(plan.scratch("stack.npy"), mmap_mode="r"),
+                                  np.load(plan.scratch("valid.npy"), mmap_mode="r"), plan.solve.solver_lights, result)
+    record = record_normals(session, plan.run, result, channels, registration=_registration(plan, result),
+                            prediction=prediction)
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record
