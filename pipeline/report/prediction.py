@@ -28,8 +28,8 @@ def prediction_section(session, write):
     """HTML of the section (a paragraph saying why when there is nothing to show)."""
     found = read_prediction(session)
     if found is None:
-        return ("<p>No held-out-light prediction: the normals stage ran with <code>--holdout-folds 0</code>, "
-                "in tiles, or before psrig had the check (<code>psrig normals --force</code> runs it).</p>")
+        return ("<p>No held-out-light prediction: the normals stage ran with <code>--holdout-folds 0</code> "
+                "or before psrig had the check (<code>psrig normals --force</code> runs it).</p>")
     if found.get("verdict") != "checked":
         return f"<p>{_html.escape(prediction_line(found))}.</p>"
     text = (f"<p><b>{_html.escape(prediction_line(found))}</b> (relative RMS error of the predicted frames "
