@@ -242,6 +242,7 @@ def prediction_line(found):
         return ""
     if found.get("verdict") != "checked":
         return f"held-out lights: not checked ({found.get('reason', 'no reason given')})"
-    overall = found["overall"]
-    return (f"held-out lights: biquadratic predicts within {overall['biquadratic_pct']:.1f} % RMS, "
-            f"Lambert {overall['lambert_pct']:.1f} %")
+    bq, lam = found["overall"]["biquadratic_pct"], found["overall"]["lambert_pct"]
+    # one decimal unless it would show two different errors as the same
+    digits = 1 if f"{bq:.1f}" != f"{lam:.1f}" else 2
+    return f"held-out lights: biquadratic predicts within {bq:.{digits}f} % RMS, Lambert {lam:.{digits}f} %"

@@ -141,3 +141,12 @@ def test_near_lights_are_scored_with_their_per_pixel_directions_and_falloff():
     # the same images read as distant lights miss the falloff and the directions' spread
     far = held_out_prediction(images, None, directions, mask, folds=4)
     assert far["overall"]["lambert_pct"] > 2 * near["overall"]["lambert_pct"]
+
+
+def test_the_line_shows_two_decimals_only_when_one_would_hide_the_difference():
+    def found(bq, lam):
+        return {"verdict": "checked", "overall": {"biquadratic_pct": bq, "lambert_pct": lam}}
+
+    assert prediction_line(found(6.12, 11.43)) == ("held-out lights: biquadratic predicts within 6.1 % RMS, "
+                                                   "Lambert 11.4 %")
+    assert prediction_line(found(12.89, 12.92)).endswith("within 12.89 % RMS, Lambert 12.92 %")
