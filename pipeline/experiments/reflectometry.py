@@ -182,7 +182,8 @@ def materials_table(mae, relative, counts, labels, light=DEFAULT_LIGHT, size=128
     header = ["material"] + [f"{name} ({counts[name]} params) MAE" for name in COMPARED] + \
         [f"{name} % of mean" for name in COMPARED]
     table = Table("Fig. 5 over psrig's analytic materials: reflectometry from one image of a sphere",
-                  header, note=f"One simulated {size} px sphere per material, light {tuple(round(v, 3) for v in light)}, "
+                  header, note=f"One simulated {size} px sphere per material, light "
+                                f"{tuple(round(v, 3) for v in light)}, "
                                 "k_d = k_s = 1; MAE in BRDF x n.l units over the lit pixels, and as a percentage of "
                                 "the sphere's mean radiance. biquadratic, Lafortune, Lambert: fitted to the one image; "
                                 "bivariate: the material's BRDF tabulated over (theta_h, theta_d), averaged over phi_d "

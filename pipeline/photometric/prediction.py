@@ -28,7 +28,8 @@ from .estimate import estimate_normals
 from .model import half_vectors
 from .near_lights import PointLights
 
-__all__ = ["held_out_prediction", "light_folds", "sample_window", "render", "prediction_line", "read_prediction", "MIN_LIGHTS",
+__all__ = ["held_out_prediction", "light_folds", "sample_window", "render", "prediction_line", "read_prediction",
+           "MIN_LIGHTS",
            "FOLDS", "SAMPLE_PIXELS", "LIT_FRACTION", "MIN_PIXELS", "LAMBERT_METHOD"]
 
 #: fewer lights than this leave too few to fit once some are held back: the check is refused

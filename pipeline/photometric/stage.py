@@ -31,7 +31,8 @@ from .prediction import FOLDS, held_out_prediction
 from .registration import align_frames, alignable, check_registration
 from .summary import normals_warnings
 
-__all__ = ["normals_session", "begin_normals", "record_normals", "predict_held_out", "NormalsRun", "ChannelSums", "load_object_stack",
+__all__ = ["normals_session", "begin_normals", "record_normals", "predict_held_out", "NormalsRun", "ChannelSums",
+           "load_object_stack",
            "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "registration_record",
            "STAGE",
            "LIGHT_MODELS", "ALIGN_MODES", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS"]

@@ -18,6 +18,7 @@ import numpy as np
 from ..atomic import atomic_write_text
 from ..errors import InputError
 from ..imageio import write_image, write_mask
+from ..photometric.stage import PAPER_NAMES
 from .model import MATERIAL, read_model, shade
 
 __all__ = ["export_relight", "FORMATS", "COEFFICIENTS", "FORMULA", "SPEC_NAME"]
@@ -27,6 +28,8 @@ SPEC_NAME = "relight.json"
 #: the coefficients in the paper's order with the monomial each multiplies
 COEFFICIENTS = (("A", "x^2 y^2"), ("B", "x^2 y"), ("C", "x^2"), ("D", "x y^2"), ("E", "x y"), ("F", "x"),
                 ("G", "y^2"), ("H", "y"), ("I", "1"))
+#: coefficients.exr's channel names: the normals stage's brdf.exr names, which sort in order A..I
+CHANNELS = PAPER_NAMES
 FORMULA = {
     "light": "l: unit vector toward a distant light, camera frame",
     "view": "v = (0, 0, 1): orthographic camera looking down -z",
@@ -101,14 +104,12 @@ def export_relight(session, folder, fmt="exr"):
     if fmt == "exr":
         write_image(folder / "normals.exr", model.normals, channel_names=("normal.x", "normal.y", "normal.z"))
         write_image(folder / "albedo.exr", model.albedo, channel_names=("R", "G", "B"))
-        write_image(folder / "coefficients.exr", model.coefficients,
-                    channel_names=tuple(f"brdf.{n}_{m.replace('^', '').replace(' ', '')}"
-                                        for n, m in COEFFICIENTS))
+        write_image(folder / "coefficients.exr", model.coefficients, channel_names=CHANNELS)
         files["normals"] = {"file": "normals.exr", "channels": ["normal.x", "normal.y", "normal.z"],
                             "decode": "float32 as stored"}
         files["albedo"] = {"file": "albedo.exr", "channels": ["R", "G", "B"], "decode": "float32 as stored"}
         files["coefficients"] = {"file": "coefficients.exr",
-                                 "channels": [f"brdf.{n}_{m.replace('^', '').replace(' ', '')}" for n, m in COEFFICIENTS],
+                                 "channels": list(CHANNELS),
                                  "decode": "float32 as stored; the channel names sort in the order A..I"}
     else:
         normals = np.where(model.mask[..., None], (model.normals + 1.0) / 2.0, 0.0)
