@@ -138,8 +138,10 @@ def export_relight(session, folder, fmt="exr"):
         "files": files,
         "coefficients": [{"name": n, "monomial": m} for n, m in COEFFICIENTS],
         "coefficients_note": ("relative to the albedo; psrig fitted them" if model.method == "biquadratic" else
-                              f"the normals were fitted with {model.method!r}, not the biquadratic: A..H = 0, "
-                              "I = 1 (Lambertian)"),
+                              f"relative to the albedo; converted from the {model.method!r} fit"
+                              if model.family == "biquadratic" else
+                              f"the normals were fitted with {model.method!r}, outside the biquadratic's family: "
+                              "A..H = 0, I = 1 (Lambertian)"),
         "formula": FORMULA,
         "normals_material": dict(MATERIAL, formula="grey = diffuse * max(n.l, 0) + specular * max(n.h, 0)^exponent "
                                                    "where n.l > 0 (psrig's report, mode 'normals')"),

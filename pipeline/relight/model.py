@@ -11,7 +11,11 @@ view v = (0, 0, 1)) is, per colour channel c::
     rho = A x^2 y^2 + B x^2 y + C x^2 + D x y^2 + E x y + F x + G y^2 + H y + I
     I_c = albedo_c * rho * max(n . l, 0)
 
-(rho = 1 for a session fitted with another method than the biquadratic: Lambert). The report's
+The normals stage's other methods in this family are converted: ``biquadratic-factorised`` (Eq. 1,
+rho = (A1 x^2 + B1 x + C1)(A2 y^2 + B2 y + C2), the outer product of its two triples) and
+``bilinear`` (x y, x, y, 1); their coefficients are absolute (the paper's alternation carries the
+albedo in rho), so they are divided by the grey albedo. Any other method is drawn Lambertian
+(rho = 1), and :attr:`FittedModel.family` says so. The report's
 relighting view (:mod:`pipeline.report.relight_view`) and ``psrig export --relight``
 (:mod:`pipeline.relight.export`) use this; :func:`shade` is the reference both are tested against.
 """
@@ -24,7 +28,7 @@ from ..errors import InputError
 from ..imageio import read_image, read_mask
 from ..paths import ALBEDO, NORMALS, NORMALS_MASK
 
-__all__ = ["FittedModel", "read_model", "shade", "MODES", "MATERIAL", "BRDF"]
+__all__ = ["FittedModel", "read_model", "shade", "MODES", "MATERIAL", "BRDF", "CONVERTED"]
 
 BRDF = "normals/brdf.exr"
 #: what :func:`shade` draws: the fitted model, its diffuse part (albedo x n . l), the normals
@@ -50,7 +54,10 @@ class FittedModel:
     albedo : ndarray (H, W, 3) float32
         Linear RGB albedo (grey repeated), light intensities divided out.
     method : str
-        The normals stage's method; ``biquadratic`` says that the coefficients are fitted.
+        The normals stage's method.
+    family : str
+        'biquadratic' when the coefficients hold the method's fit (:data:`CONVERTED`), else
+        'lambert' (A..H = 0, I = 1).
     """
 
     normals: np.ndarray
@@ -58,6 +65,7 @@ class FittedModel:
     coefficients: np.ndarray
     albedo: np.ndarray
     method: str
+    family: str = "biquadratic"
 
     @property
     def shape(self):
@@ -68,7 +76,7 @@ class FittedModel:
         (sampled, not averaged: the view shows exactly the fitted values)."""
         pick = (slice(None, None, step), slice(None, None, step))
         return FittedModel(self.normals[pick], self.mask[pick], self.coefficients[pick], self.albedo[pick],
-                           self.method)
+                           self.method, self.family)
 
 
 def read_model(session):
@@ -86,19 +94,40 @@ def read_model(session):
     coefficients = np.zeros(shape + (9,), np.float32)
     coefficients[:, :, 8] = 1.0
     brdf = session.path(BRDF)
-    if method == "biquadratic":
+    family = "lambert"
+    if method in CONVERTED:
         if not brdf.is_file():
             raise InputError(f"{brdf}: missing (run `psrig normals` first)")
-        coefficients = read_image(brdf).astype(np.float32)
-        if coefficients.shape[2] != 9:
-            raise InputError(f"{brdf}: {coefficients.shape[2]} channels, the biquadratic has 9 (A..I)")
+        params = read_image(brdf).astype(np.float64)
+        if params.shape[2] != CONVERTED[method]:
+            raise InputError(f"{brdf}: {params.shape[2]} channels, the {method} model has {CONVERTED[method]}")
+        coefficients, family = _relaxed(method, params, albedo), "biquadratic"
     for name, array in (("albedo", albedo), ("brdf", coefficients)):
         if array.shape[:2] != shape:
             raise InputError(f"normals/{name}.exr: size {array.shape[:2]} differs from normals.exr's {shape}")
     mask &= np.isfinite(coefficients).all(axis=2) & np.isfinite(albedo).all(axis=2)
     zero = ~mask
     normals[zero], albedo[zero], coefficients[zero] = 0.0, 0.0, 0.0
-    return FittedModel(normals, mask, coefficients, albedo, method)
+    return FittedModel(normals, mask, coefficients, albedo, method, family)
+
+
+#: the normals stage's methods whose fits are biquadratics, with their parameter counts
+CONVERTED = {"biquadratic": 9, "biquadratic-factorised": 6, "bilinear": 4}
+
+
+def _relaxed(method, params, albedo):
+    """Eq. 2's nine coefficients (H, W, 9), relative to the albedo, of a fit of ``method``."""
+    if method == "biquadratic":
+        return params.astype(np.float32)
+    relaxed = np.zeros(params.shape[:2] + (9,))
+    if method == "biquadratic-factorised":
+        # (A1, B1, C1) of x^2, x, 1 times (A2, B2, C2) of y^2, y, 1: row-major is the paper's A..I
+        relaxed = (params[..., :3, None] * params[..., None, 3:]).reshape(params.shape[:2] + (9,))
+    else:  # bilinear: x y, x, y, 1 -> E, F, H, I
+        relaxed[..., [4, 5, 7, 8]] = params
+    grey = albedo.mean(axis=2, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(grey[..., None] > 0, relaxed / grey[..., None], 0.0).astype(np.float32)
 
 
 def shade(normals, coefficients, albedo, light, mode="model"):

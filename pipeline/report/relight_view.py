@@ -82,7 +82,7 @@ def relight_payload(model, lights=None, frames=None, max_side=MAX_SIDE):
     lights = [] if lights is None else np.round(np.asarray(lights, float), 5).tolist()
     return {"width": int(inside.shape[1]), "height": int(inside.shape[0]), "step": step, "pixels": count,
             "mask": _b64(inside.astype(np.uint8)), "values": _b64(values), "white": display_white(grid),
-            "method": model.method, "light": list(START_LIGHT), "lights": lights,
+            "method": model.method, "family": model.family, "light": list(START_LIGHT), "lights": lights,
             "frames": [{"id": i, "light": int(k), "thumb": t} for i, k, t in (frames or [])]}
 
 
@@ -112,8 +112,8 @@ def relight_section(key, payload):
     """The view's canvases, mode buttons, exposure and readout (the scripts are added to the page)."""
     scale = max(1, 480 // max(payload["width"], payload["height"]))
     width, height = payload["width"] * scale, payload["height"] * scale
-    fitted = payload["method"] == "biquadratic"
-    modes = [("model", "the model" if fitted else f"the model ({html.escape(payload['method'])}: Lambertian)"),
+    fitted = payload["family"] == "biquadratic"
+    modes = [("model", "the model" if fitted else f"the model ({html.escape(payload['method'])}: drawn Lambertian)"),
              ("diffuse", "diffuse only (albedo &times; n&middot;l)"), ("normals", "normals, fixed material")]
     start = _nearest_frame(payload)
     frame = ""

@@ -83,3 +83,25 @@ def test_export_of_a_session_without_normals_names_the_file(tmp_path, capsys):
     assert main(["export", str(session.root), "--relight", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
     assert "normals.exr: missing" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("method", ["biquadratic-factorised", "bilinear"])
+def test_fits_of_the_biquadratic_family_are_converted_to_the_nine_coefficients(tmp_path, method):
+    from pipeline.reflectance import Geometry, get_model
+
+    session = make_session(tmp_path)
+    assert main(["decode", str(session.root)]) == 0
+    assert main(["normals", str(session.root), "--method", method, "--holdout-folds", "0"]) == 0
+    session = Session.open(session.root)
+    model = read_model(session)
+    assert model.family == "biquadratic" and model.method == method
+    mask = model.mask
+    light = np.array([0.3, -0.2, 0.93])
+    light /= np.linalg.norm(light)
+    params = read_image(session.path("normals/brdf.exr"))[mask].astype(np.float64)
+    n = model.normals[mask].astype(np.float64)
+    geometry = Geometry.from_vectors(n, light[None])
+    # the method's own model: rho carries the albedo (the paper's alternation)
+    want = get_model(method).evaluate(params, geometry)[:, 0] * np.maximum(n @ light, 0)
+    got = shade(n, model.coefficients[mask], model.albedo[mask], light).mean(axis=1)
+    assert np.abs(got - want).max() < 1e-4 * max(np.abs(want).max(), 1e-9)
