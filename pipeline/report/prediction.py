@@ -10,6 +10,7 @@ import html as _html
 
 import numpy as np
 
+from ..errors import InputError
 from ..imageio import read_image
 from ..paths import PREDICTION_IMAGES
 from ..photometric.prediction import prediction_line, read_prediction
@@ -26,7 +27,10 @@ DIFFERENCE_TOP_PCT = 20.0
 
 def prediction_section(session, write):
     """HTML of the section (a paragraph saying why when there is nothing to show)."""
-    found = read_prediction(session)
+    try:
+        found = read_prediction(session)
+    except InputError as err:   # the rest of the report is still worth writing
+        return f"<p>Held-out-light prediction not shown: {_html.escape(str(err))}</p>"
     if found is None:
         return ("<p>No held-out-light prediction: the normals stage ran with <code>--holdout-folds 0</code> "
                 "or before psrig had the check (<code>psrig normals --force</code> runs it).</p>")

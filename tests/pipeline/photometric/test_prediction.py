@@ -150,3 +150,14 @@ def test_the_line_shows_two_decimals_only_when_one_would_hide_the_difference():
     assert prediction_line(found(6.12, 11.43)) == ("held-out lights: biquadratic predicts within 6.1 % RMS, "
                                                    "Lambert 11.4 %")
     assert prediction_line(found(12.89, 12.92)).endswith("within 12.89 % RMS, Lambert 12.92 %")
+
+
+def test_a_damaged_prediction_file_is_named_by_eval_and_the_report(tmp_path, capsys):
+    session = decoded(tmp_path)
+    normals_session(session, show_progress=False)
+    session.path("normals/prediction.yaml").write_text("just text\n")
+    capsys.readouterr()
+    assert main(["eval", str(session.root)]) == 1
+    assert "prediction.yaml: not a held-out prediction record" in capsys.readouterr().err
+    assert main(["report", str(session.root)]) == 0
+    assert "prediction.yaml: not a held-out prediction record" in session.path("report/index.html").read_text()
