@@ -280,7 +280,10 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
         def solve(directions, pixels):
             out = estimate_normals(images, directions, pixels, method=method, valid=valid,
                                    progress=bar.update if pixels is mask else None, **run.options)
-            solved_with[id(out)] = directions   # the held-out check renders at the kept depth
+            # the held-out check renders with the kept solve's lights (near: at its depth); by id,
+            # so that the searches' solves are not all kept alive (the kept one is, so its id is
+            # not reused)
+            solved_with[id(out)] = directions
             return out
 
         lights = run.solver_lights(images.shape[1:])
