@@ -52,7 +52,7 @@ def _chart(found):
     series = {name: np.array([np.nan if e[f"{name}_pct"] is None else e[f"{name}_pct"] for e in lights])
               for name in ("biquadratic", "lambert")}
     top = max(float(np.nanmax(np.concatenate(list(series.values())))), 1.0) * 1.05
-    chart = Chart((-0.5, len(lights) - 0.5), (0.0, top), width=560, x_label="light (the frames' order)",
+    chart = Chart((0, max(len(lights) - 1, 1)), (0.0, top), width=560, x_label="light (the frames' order)",
                   y_label="held-out error, % RMS")
     for (name, values), colour in zip(series.items(), SERIES_COLOURS):
         chart.line(xs, values, colour, dots=True, dash="2,3")
