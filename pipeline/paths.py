@@ -6,7 +6,7 @@ on where it lies. Paths are POSIX-style and relative to the session folder
 """
 
 __all__ = ["LIGHTS", "EXCLUDE", "LIGHTS_LP", "OBJECT_MASK", "SPHERE_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "UNCERTAINTY", "STATUS_MAP",
-           "OBSERVATIONS", "LIT_OBSERVATIONS", "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION",
+           "OBSERVATIONS", "LIT_OBSERVATIONS", "PREDICTION", "PREDICTION_IMAGES", "ERROR_MAP", "EVAL", "DEPTH", "MESH", "MESH_OBJ", "MESH_TEXTURE", "SHADED", "INTEGRATION",
            "REPORT", "TRUTH_LIGHTS", "TRUTH_NORMALS", "TRUTH_NORMALS_PNG", "TRUTH_MASK", "DECODE_SCRATCH",
            "TILES_SCRATCH", "SCRATCH", "linear_frame", "saturation_frame"]
 
@@ -47,6 +47,10 @@ STATUS_MAP = "normals/status.png"
 OBSERVATIONS = "normals/observations.png"
 #: per pixel, the number of its observations above the shadow threshold (16-bit)
 LIT_OBSERVATIONS = "normals/lit.png"
+#: normals stage -> report, eval: the held-out-light prediction (pipeline.photometric.prediction)
+PREDICTION = "normals/prediction.yaml"
+#: its worst light's captured and predicted images on the sample grid (float EXR)
+PREDICTION_IMAGES = "normals/prediction.exr"
 #: eval -> report
 ERROR_MAP = "normals/error.png"
 EVAL = "normals/eval.yaml"

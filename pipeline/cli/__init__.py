@@ -21,7 +21,7 @@ __all__ = ["main", "COMMANDS"]
 
 COMMANDS = (
     "rigs", "capture", "preview", "importers", "decode", "calibrate", "normals", "integrate",
-    "run", "eval", "report", "demo", "experiments", "reflectometry",
+    "run", "eval", "report", "export", "demo", "experiments", "reflectometry",
 )
 
 

@@ -13,7 +13,9 @@ def register(subparsers):
         "eval", help="errors against ground truth, when the session has it",
         description="Score normals (angular error), lights (per-light angle) and depth (mean "
                     "absolute error after an offset or scale fit) against the session's ground "
-                    "truth; writes normals/eval.yaml and normals/error.png.")
+                    "truth; writes normals/eval.yaml and normals/error.png. Also shows the normals "
+                    "stage's held-out-light prediction (normals/prediction.yaml), which needs no "
+                    "ground truth.")
     parser.add_argument("session", metavar="SESSION", help="session folder")
     parser.add_argument("--json", action="store_true", help="print the numbers as JSON")
     parser.add_argument("--max-deg", type=float, default=30.0,
@@ -24,14 +26,18 @@ def register(subparsers):
 
 def run(args):
     from ..evaluate import evaluate_session
+    from ..photometric.prediction import prediction_line, read_prediction
 
     session = open_session(args.session, args)
     result = evaluate_session(session, max_deg=args.max_deg)
+    held_out = read_prediction(session)
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(json.dumps(dict(result, **({"prediction": held_out} if held_out else {})), indent=2))
     elif result:
         print(format_summary(result))
-    if not result:   # a script must not take "nothing evaluated" for a pass
+    if held_out and not args.json:
+        print(prediction_line(held_out))
+    if not result and not held_out:   # a script must not take "nothing evaluated" for a pass
         print(f"psrig eval: error: {session.root}: nothing to evaluate ({_why_nothing(session)})", file=sys.stderr)
         return 1
     return 0

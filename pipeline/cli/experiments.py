@@ -48,7 +48,7 @@ def register(subparsers):
     parser = subparsers.add_parser(
         "experiments", help="reproduce the paper's experiments (tables + figures)",
         description="The experiments of Shi et al. (CVPR 2012): Fig. 2 (cook-torrance), Fig. 3 "
-                    "(merl), Fig. 4 (models), Fig. 6 (ps). Each writes table.csv, table.md and "
+                    "(merl), Fig. 4 (models), Fig. 5 (reflectometry), Fig. 6 (ps). Each writes table.csv, table.md and "
                     "figure.png into --out.")
     sub = parser.add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
 
@@ -88,7 +88,16 @@ def register(subparsers):
                     help="leave out the row of psrig's default estimator")
     ps.set_defaults(func=_run_ps)
 
-    for p in (ct, merl, models, ps):
+    refl = sub.add_parser("reflectometry", help="Fig. 5 over the analytic materials: biquadratic vs the "
+                          "bivariate table vs Lafortune and Lambert, from one image of a sphere")
+    refl.add_argument("folder", metavar="DIR", nargs="?", help="optional folder of MERL files to add")
+    refl.add_argument("--roughness", default="0.1,0.2,0.3,0.5,0.7",
+                      help="roughness of the generated Cook-Torrance and Ward materials")
+    refl.add_argument("--light", metavar="X,Y,Z", help="direction toward the light (default 0.4,0.3,0.866)")
+    refl.add_argument("--size", type=int, default=128, help="simulated sphere image size (128)")
+    refl.set_defaults(func=_run_reflectometry)
+
+    for p in (ct, merl, models, ps, refl):
         p.add_argument("--out", metavar="DIR", help="output folder (default "
                        "./experiments-out/<experiment>)")
 
@@ -148,6 +157,27 @@ def _run_models(args):
     mae, labels = exp.models_comparison(files, args.t_low, roughness, **_protocol(args))
     return _finish(args, "models", exp.models_table(mae, labels, args.t_low, **_protocol(args)),
                    exp.models_figure(mae, labels), started)
+
+
+def _run_reflectometry(args):
+    from ..experiments import reflectometry as exp
+    from ..experiments.merl import find_merl_files
+
+    started = time.perf_counter()
+    roughness = parse_floats(args.roughness, "--roughness")
+    if any(not 0 < m <= 1 for m in roughness):
+        raise InputError(f"--roughness: every m must be in (0, 1], got {args.roughness!r}")
+    if args.size < 16:
+        raise InputError(f"--size must be at least 16, got {args.size}")
+    light = parse_floats(args.light, "--light") if args.light else exp.DEFAULT_LIGHT
+    if len(light) != 3:
+        raise InputError(f"--light: expected 3 comma-separated numbers, got {args.light!r}")
+    specs = [f"{name}:{m:g}" for name in ("cook-torrance", "ward") for m in roughness]
+    specs += [str(f) for f in (find_merl_files(args.folder) if args.folder else ())]
+    materials = [exp.parse_material(spec)[::-1] for spec in specs]
+    mae, relative, counts, labels = exp.materials_comparison(materials, light, args.size)
+    return _finish(args, "reflectometry", exp.materials_table(mae, relative, counts, labels, light, args.size),
+                   exp.materials_figure(relative, counts, labels), started)
 
 
 def _run_ps(args):

@@ -13,8 +13,10 @@ def register(subparsers):
         "reflectometry", help="fit reflectance models to one image of a sphere (paper Sec. 4)",
         description="Fit the biquadratic, Lafortune and Lambertian models to ONE linear image of "
                     "a sphere of known shape under one known light, re-render the sphere with "
-                    "each fit, and write the MAE table and the difference maps. Either a user's "
-                    "image (--image, --light, --circle) or a simulated sphere (--simulate).")
+                    "each fit, and write the MAE table (with each model's parameter count) and the "
+                    "difference maps. Either a user's image (--image, --light, --circle) or a "
+                    "simulated sphere (--simulate), which also has the paper's bivariate table "
+                    "model rho(theta_h, theta_d), averaged over phi_d, built from the material.")
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--image", metavar="FILE", help="linear image of the sphere (EXR, 16-bit PNG/TIFF)")
     source.add_argument("--simulate", metavar="MATERIAL", default=None,
@@ -52,12 +54,12 @@ def _load(args):
             raise InputError("--image needs --light X,Y,Z and --circle CX,CY,R")
         image = read_image(args.image).astype(float)
         normals, mask = exp.sphere_normals(image.shape[:2], floats(args.circle, "--circle", 3))
-        return image, normals, mask, light, Path(args.image).name, args.saturation
+        return image, normals, mask, light, Path(args.image).name, args.saturation, None
     material, label = exp.parse_material(args.simulate or "cook-torrance:0.5")
     if args.size < 16:
         raise InputError(f"--size must be at least 16, got {args.size}")
     image, normals, mask = exp.simulate_sphere(material, light, args.size)
-    return image, normals, mask, light, f"simulated {label}", None
+    return image, normals, mask, light, f"simulated {label}", None, material
 
 
 def run(args):
@@ -65,8 +67,8 @@ def run(args):
     from ..experiments.tables import write_outputs
 
     started = time.perf_counter()
-    image, normals, mask, light, label, saturation = _load(args)
-    results, used = exp.reflectometry(image, normals, mask, light, saturation=saturation)
+    image, normals, mask, light, label, saturation, material = _load(args)
+    results, used = exp.reflectometry(image, normals, mask, light, saturation=saturation, material=material)
     table = exp.reflectometry_table(results, label, image)
     out = Path(args.out or Path("experiments-out") / "reflectometry")
     paths = write_outputs(out, table, exp.reflectometry_figure(image, results, used))

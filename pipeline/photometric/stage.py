@@ -19,20 +19,24 @@ import numpy as np
 
 from ..errors import StageError
 from ..imageio import read_image, read_mask, write_image, write_mask, write_normal_png
+from ..atomic import atomic_write_text
 from ..lightsio import read_exclude, read_lights_yaml
-from ..paths import EXCLUDE, LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, UNCERTAINTY
+from ..paths import EXCLUDE, LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, PREDICTION, PREDICTION_IMAGES, UNCERTAINTY
 from ..progress import progress as progress_bar
-from ..settings.normals import EstimateOptions, NormalsOptions
+from ..settings.normals import FOLDS, EstimateOptions, NormalsOptions
 from ..core.stage import Stage
-from ..yamlio import plain
+from ..yamlio import dump_yaml, plain
+from .anchor import scale_cone
 from .estimate import estimate_normals
 from .methods import METHODS, STATUS, STATUS_NAMES, STATUS_PALETTE, check_method_options, method_traits
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
+from .prediction import held_out_prediction
 from .registration import align_frames, alignable, check_registration
 from .summary import normals_warnings
 
-__all__ = ["NormalsStage", "NORMALS", "normals_session", "registration_verdict", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack",
+__all__ = ["NormalsStage", "NORMALS", "normals_session", "registration_verdict", "begin_normals", "record_normals",
+           "predict_held_out", "NormalsRun", "ChannelSums", "load_object_stack",
            "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "registration_record",
            "STAGE",
            "LIGHT_MODELS", "ALIGN_MODES", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS"]
@@ -184,6 +188,8 @@ def begin_normals(session, *, force=False, **options):
     """
     chosen = NormalsOptions.of(options, where=STAGE)
     check_method_options(chosen.method, chosen.solver_options())   # before any file is read
+    if chosen.holdout_folds == 1:
+        raise StageError("normals: --holdout-folds must be 0 (off) or at least 2, got 1")
     frames = _object_frames(session)
     mask_rel = session.manifest["lights"].get("object_mask")
     params = chosen.record()
@@ -313,6 +319,9 @@ def normals_session(session, *, force=False, show_progress=True, **options):
     (:func:`pipeline.photometric.registration.check_registration`); ``align`` 'auto' aligns
     the frames found moved and solves again where the object pins position well
     (:func:`pipeline.photometric.registration.alignable`), 'off' only says.
+    Last, ``holdout_folds`` folds of the lights are held back in turn and the biquadratic and
+    Lambertian fits scored on predicting them (:mod:`pipeline.photometric.prediction`;
+    ``normals/prediction.yaml``, ``normals/prediction.exr``); 0 skips it.
     """
     run = begin_normals(session, force=force, **options)
     if run is None:
@@ -322,11 +331,17 @@ def normals_session(session, *, force=False, show_progress=True, **options):
     images, valid = load_object_stack(session, run.frames, run.lights, channels)
     mask = object_mask(session, run, images)
     passes = PASSES if run.model == "near" and near_depth else 0
+    solved_with = {}
     with progress_bar(total=int(mask.sum()) * (1 + passes), desc="normals", unit="px",
                       disable=not show_progress) as bar:
         def solve(directions, pixels):
-            return estimate_normals(images, directions, pixels, method=method, valid=valid,
-                                    progress=bar.update if pixels is mask else None, **run.options)
+            out = estimate_normals(images, directions, pixels, method=method, valid=valid,
+                                   progress=bar.update if pixels is mask else None, **run.options)
+            # the held-out check renders with the kept solve's lights (near: at its depth); by id,
+            # so that the searches' solves are not all kept alive (the kept one is, so its id is
+            # not reused)
+            solved_with[id(out)] = directions
+            return out
 
         lights = run.solver_lights(images.shape[1:])
         if run.model == "near":
@@ -334,8 +349,11 @@ def normals_session(session, *, force=False, show_progress=True, **options):
         else:
             result, depth = solve(lights, mask), None
     # after the solve: every frame against the model's rendering of it (the object or camera moved?)
-    result, registration = _register(images, valid, lights, mask, result, method, run.options, run.align)
-    return record_normals(session, run, result, channels, near_depth=depth, registration=registration)
+    result, registration, (images, valid) = _register(images, valid, lights, mask, result, method, run.options,
+                                                      run.align)
+    prediction = predict_held_out(run, images, valid, solved_with.get(id(result), lights), result)
+    return record_normals(session, run, result, channels, near_depth=depth, registration=registration,
+                          prediction=prediction)
 
 
 def registration_verdict(images, valid, lights, result, align, resolve=None):
@@ -354,29 +372,55 @@ def registration_verdict(images, valid, lights, result, align, resolve=None):
     return found
 
 
+def predict_held_out(run, images, valid, lights, result):
+    """The held-out-light check of ``run`` (None when its ``holdout_folds`` is 0) on the stack
+    (K, H, W) the result was solved from (memory-mapped is fine: a grid window is read), with
+    the ``lights`` it was solved with."""
+    folds = run.params.get("holdout_folds", FOLDS)
+    if not folds:
+        return None
+    return held_out_prediction(images, valid, _fitted_lights(lights, result), result.mask, options=run.options,
+                               folds=folds)
+
+
+def _fitted_lights(lights, result):
+    """The lights the kept solve fitted with: the specular anchor's corrected cone, when it
+    corrected one (the held-out refits run without the anchor, on these lights)."""
+    if result.options.get("anchor") == "corrected" and not isinstance(lights, PointLights):
+        return scale_cone(np.asarray(lights, float), float(result.options["cone_scale"]))
+    return lights
+
+
 def _register(images, valid, lights, mask, result, method, options, align):
     """:func:`registration_verdict`, and the normals solved again with the moved frames aligned
-    when it says so. Returns the result to keep and the check's finding."""
+    when it says so. Returns the result to keep, the check's finding and the (images, valid) it
+    was solved from (the aligned copies when frames were aligned: the held-out check predicts
+    those)."""
     def solve(stack, usable, chosen=slice(None)):
         return estimate_normals(stack, lights[chosen], mask, method=method, valid=usable, **options)
 
     found = registration_verdict(images, valid, lights, result, align,
                                  resolve=lambda keep: solve(images[keep], valid[keep], keep))
     if found.pop("align", False):
-        result = solve(*align_frames(images, valid, found["moved"]))
+        images, valid = align_frames(images, valid, found["moved"])
+        result = solve(images, valid)
         found["aligned"] = True
-    return result, found
+    return result, found, (images, valid)
 
 
-def record_normals(session, run, result, channels, near_depth=None, registration=None):
+def record_normals(session, run, result, channels, near_depth=None, registration=None, prediction=None):
     """Write ``normals/`` from a :class:`PhotometricResult` and record the stage; returns the record.
 
     ``channels`` is the :class:`ChannelSums` gathered while the frames were read (the albedo's
     colour); ``near_depth`` :func:`pipeline.photometric.near_depth.refine_near_depth`'s report,
     kept when it ran a pass; ``registration`` :func:`pipeline.photometric.registration.check_registration`'s
-    finding (by frame index), kept by frame id.
+    finding (by frame index), kept by frame id; ``prediction``
+    :func:`pipeline.photometric.prediction.held_out_prediction`'s finding (by frame index),
+    written to ``normals/prediction.yaml`` (and its worst light's images to
+    ``normals/prediction.exr``) and summed up in the record.
     """
     outputs = _write_outputs(session, result, channels)
+    outputs += _write_prediction(session, prediction, run.frames)
     counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
     extra = {"pixels": int(result.mask.sum()), "status_counts": counts, **run.extra()}
     if near_depth is not None and near_depth["passes"]:
@@ -388,6 +432,8 @@ def record_normals(session, run, result, channels, near_depth=None, registration
         extra["outline_check"] = plain(result.options["outline_check"])
     extra.update(registration_record(registration, run.frames))
     extra["uncertainty"] = uncertainty_record(result.options.get("uncertainty"))
+    if prediction is not None:
+        extra["prediction"] = prediction_record(prediction, run.frames)
     transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
     extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer,
                                          registration=extra.get("registration"))
@@ -397,6 +443,8 @@ def record_normals(session, run, result, channels, near_depth=None, registration
                                 **extra)
 
 
+#: the channels of normals/prediction.exr, in order (prediction.captured, ...)
+PREDICTION_CHANNELS = ("captured", "biquadratic", "lambert")
 #: the solver's options the stage record keeps (after the policy filled them in)
 SELECTION_KEYS = ("selection", "t_low", "t_shadow", "reject_k", "consensus", "scale_floor", "shape_prior",
                   "shared_shape", "selection_check")
@@ -432,6 +480,46 @@ def registration_record(found, frames):
     if found.get("run_from") is not None:
         found["run_from"] = frames[int(found["run_from"])]["id"]
     return {"registration": plain(found)}
+
+
+def prediction_record(found, frames):
+    """The stage record's ``prediction`` entry: verdict, overall errors and the worst light (by
+    frame id); the per-light table is in ``normals/prediction.yaml``."""
+    # no time: the serial and the tiled stage write the same bytes (the stage's seconds cover it)
+    keep = {k: v for k, v in found.items() if k not in ("lights", "images", "seconds")}
+    if "worst_light" in keep:
+        keep["worst_light"] = frames[int(keep["worst_light"])]["id"]
+        worst = found["lights"][int(found["worst_light"])]
+        keep["worst_light_pct"] = {k: worst[k] for k in ("biquadratic_pct", "lambert_pct")}
+    return plain(keep)
+
+
+def _write_prediction(session, found, frames):
+    """normals/prediction.yaml (every light by frame id) and prediction.exr (the worst light's
+    captured and predicted images on the sample grid); the files' names ([] when none)."""
+    if found is None:
+        # not checked this run (--holdout-folds 0, the tiled stage): an earlier run's files are
+        # not of this fit
+        for rel in (PREDICTION, PREDICTION_IMAGES):
+            if session.path(rel).is_file():
+                session.path(rel).unlink()
+        return []
+    table = {k: v for k, v in found.items() if k != "seconds"}
+    images = table.pop("images", None)
+    if "lights" in table:
+        table["lights"] = [dict(entry, frame=frames[entry["light"]]["id"], light=int(frames[entry["light"]]["light"]))
+                           for entry in table["lights"]]
+        table["worst_light"] = frames[int(table["worst_light"])]["id"]
+    atomic_write_text(session.path(PREDICTION), dump_yaml(plain(table)))
+    written = [PREDICTION]
+    if images:
+        stack = np.stack([images[k] for k in PREDICTION_CHANNELS], axis=2).astype(np.float32)
+        write_image(session.path(PREDICTION_IMAGES), stack,
+                    channel_names=tuple(f"prediction.{k}" for k in PREDICTION_CHANNELS))
+        written.append(PREDICTION_IMAGES)
+    elif session.path(PREDICTION_IMAGES).is_file():
+        session.path(PREDICTION_IMAGES).unlink()   # an earlier run's: not of this fit
+    return written
 
 
 def _write_outputs(session, result, channels):

@@ -13,6 +13,7 @@ from ..paths import EXCLUDE, LIGHTS
 from .frame_gains import UNCALIBRATED_SHARE
 from .methods import share_text
 from .outline import SEEN_WHOLE, mirrored_axes, transposed_axes
+from .prediction import prediction_line
 
 __all__ = ["normals_warnings", "normals_summary", "uncertainty_text", "WARN_SHARES"]
 
@@ -183,7 +184,10 @@ def normals_summary(record):
     gains = f"; {len(rescaled)} frame(s) rescaled to the others' brightness" if rescaled else ""
     found = record.get("registration") or {}
     aligned = f"; {len(found['moved'])} moved frame(s) aligned to the others" if found.get("aligned") else ""
-    return f"{lead}: {shares}{cone}{gains}{aligned}{flagged}{uncertainty_text(record)}" + (f"; {mask}" if mask else "")
+    held = prediction_line(record.get("prediction"))
+    held = f"; {held}" if held else ""
+    return f"{lead}: {shares}{cone}{gains}{aligned}{flagged}{uncertainty_text(record)}{held}" + \
+        (f"; {mask}" if mask else "")
 
 
 def doubtful(record):

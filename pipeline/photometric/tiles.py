@@ -40,8 +40,8 @@ from .anchor import first_verdict
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)
 from .estimate import check_lights, check_plan_frames, plan_solve, result_from_maps
-from .stage import (STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, record_normals,
-                    registration_verdict)
+from .stage import (STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, predict_held_out,
+                    record_normals, registration_verdict)
 
 __all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
            "tile_context", "frame_check", "SCRATCH", "WHOLE_IMAGE"]
@@ -306,6 +306,8 @@ def assemble_normals(plan, tile_paths=None):
     if found.get("align"):   # frames to align and solve again: a whole-image solve, as the serial stage's
         shutil.rmtree(plan.scratch(), ignore_errors=True)
         return WHOLE_IMAGE
-    record = record_normals(session, plan.run, result, channels, registration=found)
+    prediction = predict_held_out(plan.run, np.load(plan.scratch("stack.npy"), mmap_mode="r"),
+                                  np.load(plan.scratch("valid.npy"), mmap_mode="r"), plan.solve.solver_lights, result)
+    record = record_normals(session, plan.run, result, channels, registration=found, prediction=prediction)
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record

@@ -22,8 +22,8 @@ from ..atomic import atomic_write_text
 from ..errors import StageError
 from ..evaluate import ERROR_TOP_DEG
 from ..imageio import read_image, write_image
-from ..paths import (ALBEDO, DEPTH, LIGHTS, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, REPORT,
-                     RESIDUAL, SHADED, STATUS_MAP, UNCERTAINTY)
+from ..paths import (ALBEDO, DEPTH, LIGHTS, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, PREDICTION,
+                     PREDICTION_IMAGES, REPORT, RESIDUAL, SHADED, STATUS_MAP, UNCERTAINTY)
 from ..session import STAGES, now_iso
 from ..settings.report import ReportOptions
 from ..core.stage import Stage
@@ -31,6 +31,8 @@ from . import html, sections
 from .images import robust_max, shrink, tone_map
 from .maps import Figure, bar_figures, choose_scales, map_figures, read_maps
 from .mesh_view import mesh_payload, write_mesh_view
+from .prediction import prediction_section
+from .relight_view import relight_payload, relight_section, write_relight_view
 
 __all__ = ["report_session", "INDEX", "THUMB_SIDE", "LAYOUT"]
 
@@ -41,7 +43,7 @@ MASK_SIDE = 480
 #: the page's layout version: a report of an older layout is rebuilt
 LAYOUT = 3
 _MAPS = (NORMALS, NORMALS_MASK, ALBEDO, RESIDUAL, UNCERTAINTY, STATUS_MAP, OBSERVATIONS, LIT_OBSERVATIONS, DEPTH,
-         SHADED)
+         SHADED, PREDICTION, PREDICTION_IMAGES)
 
 
 def _sources(session):
@@ -196,6 +198,11 @@ def _page(session, scores, max_deg, write):
                      sections.scores_section(scores) + sections.charts_section(maps, scales["error"])))
     body.append(("Results", html.figures([f for f in figures if f.key not in depth_keys], bars)))
     scripts = ()
+    if session.path(NORMALS).is_file():
+        relit, scripts = _relighting(session, lights)
+        body.append(("Relighting: the fitted model under a light you move", relit))
+        body.append(("Held-out lights: does the fit predict frames it was not given?",
+                     prediction_section(session, write)))
     depth_figs = [f for f in figures if f.key in depth_keys]
     if depth_figs or maps.depth is not None:
         view = ""
@@ -203,7 +210,7 @@ def _page(session, scores, max_deg, write):
         payload = None if maps.depth is None else mesh_payload(maps.depth / maps.depth_scale, maps.normals, maps.albedo,
                                                                _integration_K(session))
         if payload is not None:
-            scripts = write_mesh_view(session.path("report"), "depth", payload)
+            scripts = scripts + write_mesh_view(session.path("report"), "depth", payload)
             view = sections.mesh_section("depth", payload, session.stage("integrate"))
         body.append(("Depth", html.figures(depth_figs, bars) + view))
     body.append(("Lights", sections.lights_section(session, lights, scores)))
@@ -219,6 +226,25 @@ def _page(session, scores, max_deg, write):
         body.append((f"Frames: {kind} ({len(thumbs)})", html.figures(thumbs, css="thumb")))
     body.append(("Stage records", sections.details_section(session)))
     return html.page(f"psrig report: {session.root.name}", body, scripts), scripts
+
+
+def _relighting(session, lights):
+    """The relighting view's HTML and its scripts (a paragraph and none when the model cannot
+    be read)."""
+    from ..errors import InputError
+    from ..relight import read_model
+
+    try:
+        model = read_model(session)
+    except InputError as err:
+        return f"<p>No relighting view: {html.escape(str(err))}</p>", ()
+    frames = [(f["id"], f["light"], f"frames/{f['id']}.png") for f in session.stage_frames("object")
+              if f.get("light") is not None and session.linear_path(f).is_file()
+              and lights is not None and f["light"] < len(lights)]
+    payload = relight_payload(model, None if lights is None else lights.directions, frames)
+    if payload is None:
+        return "<p>No relighting view: the normals have no object pixel.</p>", ()
+    return relight_section("model", payload), write_relight_view(session.path("report"), "model", payload)
 
 
 def _integration_K(session):

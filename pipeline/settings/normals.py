@@ -14,7 +14,7 @@ from ..errors import InputError
 from ..core.options import Options, option
 
 __all__ = ["SelectionOptions", "EstimateOptions", "BiquadraticOptions", "AlternationOptions", "NormalsOptions",
-           "T_SHADOW", "WIDE_T_SHADOW", "WIDE_T_LOW", "WIDE_SPREAD_DEG", "REJECT_K", "SHAPE_PRIOR", "MAX_ITER", "TOL_DEG", "CONSENSUS", "UNCERTAIN_DEG",
+           "T_SHADOW", "WIDE_T_SHADOW", "WIDE_T_LOW", "WIDE_SPREAD_DEG", "REJECT_K", "SHAPE_PRIOR", "MAX_ITER", "TOL_DEG", "CONSENSUS", "UNCERTAIN_DEG", "FOLDS",
            "SCALE_FLOOR",
            "parse_fraction"]
 
@@ -35,6 +35,9 @@ REJECT_K = 2.5
 SCALE_FLOOR = 0.01
 #: triplets of lights the high-breakdown start of :func:`pipeline.photometric.selection.select_robust` tries per pixel
 CONSENSUS = 48
+#: folds over the lights of the held-out-light check (each light is held back once;
+#: :mod:`pipeline.photometric.prediction`)
+FOLDS = 5
 #: a pixel whose expected angular error (degrees) is over this is 'uncertain', not 'ok'
 #: (:mod:`pipeline.photometric.uncertainty`; docs/photometric-stereo.md, "Uncertainty")
 UNCERTAIN_DEG = 20.0
@@ -140,11 +143,15 @@ class NormalsOptions(BiquadraticOptions, EstimateOptions):
     near_depth: bool = option(True, "near lights: solve again at the depth the first solve's normals integrate to "
                                     "(on) or keep the object on the plane of the calibration spheres (off)",
                               cli=ON_OFF)
+    holdout_folds: int = option(FOLDS, "held-out-light check: refit the biquadratic and Lambertian models with "
+                                       "each of this many folds of the lights held back and score their prediction "
+                                       "of the held-back frames (0 = off; needs at least 6 lights)", kind=int,
+                                low=0, metavar="N")
     align: str = option("auto", "frames that see the object shifted against the others: auto aligns them and "
                                 "solves again where the object's shading pins position, off only says",
                         choices=("auto", "off"), flag="--align-frames")
 
-    STAGE_FIELDS = ("method", "lights_model", "near_depth", "align")
+    STAGE_FIELDS = ("method", "lights_model", "near_depth", "holdout_folds", "align")
 
     def record(self):
         """The stage record's parameters: the method always, the rest when not at their default."""

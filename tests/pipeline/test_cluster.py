@@ -284,7 +284,7 @@ def test_tiles_in_process_match_the_serial_stage_and_reruns_are_idempotent(tmp_p
     cluster_tiles.assemble_normals(plan)
     got, want = session_files(tiled), session_files(reference)
     normals = [rel for rel in want if rel.startswith("normals/")]
-    assert len(normals) == 11 and all(got[rel] == want[rel] for rel in normals)  # observations, lit, uncertainty too
+    assert len(normals) == 13 and all(got[rel] == want[rel] for rel in normals)  # observations, lit, uncertainty, prediction too
     assert cluster_tiles.plan_normals(Session.open(tiled), {}) is None  # up to date
     assert not (Path(tiled) / cluster_tiles.SCRATCH).exists()
 

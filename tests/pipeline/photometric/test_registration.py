@@ -82,7 +82,7 @@ def test_the_warning_names_the_frames_and_a_move_during_the_capture():
     counts = {"ok": 100}
     frames = {"verdict": "moved", "moved": {"object_003": [2.0, -1.0]}, "not_aligned": "a reason"}
     said = normals_warnings(counts, 24, {}, registration=frames)
-    assert any("object_003" in w and "2.2 px" in w and "lights.yaml" in w and "(not aligned: a reason)" in w
+    assert any("object_003" in w and "2.2 px" in w and "calibration/exclude.yaml" in w and "(not aligned: a reason)" in w
                for w in said)
     run = {"verdict": "moved", "run_from": "object_016",
            "moved": {f"object_{k:03d}": [1.5, 1.0] for k in range(16, 24)}}

@@ -53,7 +53,8 @@ def test_report_links_are_relative_and_decode(processed):
     for word in ("decode", "normals", "integrate", "mean_deg", "frames/object_007.png",
                  "maps/error.png", "maps/shaded.png", "maps/depth.png", 'class="psrig-mesh"'):
         assert word in text
-    assert [src for tag, src in links if tag == "script"] == ["mesh_depth.js", "viewer.js"]
+    assert [src for tag, src in links if tag == "script"] == ["relight_model.js", "relight.js", "mesh_depth.js",
+                                                             "viewer.js"]
 
 
 def test_report_skips_when_current_and_reruns_on_change(processed, capsys):
