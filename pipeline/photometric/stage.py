@@ -259,9 +259,19 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
                         align=align, **options)
     if run is None:
         return None
+    # the record's ``timings`` say where the stage's wall time went (read, solve, check, write)
+    clock = [time.perf_counter()]
+    timings = {}
+
+    def lap(name):
+        now = time.perf_counter()
+        timings[name] = round(now - clock[0], 3)
+        clock[0] = now
+
     channels = ChannelSums()
     images, valid = load_object_stack(session, run.frames, run.lights, channels)
     mask = object_mask(session, run, images)
+    lap("read")
     passes = PASSES if run.model == "near" and near_depth else 0
     with progress_bar(total=int(mask.sum()) * (1 + passes), desc="normals", unit="px",
                       disable=not show_progress) as bar:
@@ -274,9 +284,12 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
             result, depth = refine_near_depth(solve, lights, mask, passes=passes)
         else:
             result, depth = solve(lights, mask), None
+    lap("solve")
     # after the solve: every frame against the model's rendering of it (the object or camera moved?)
     result, registration = _register(images, valid, lights, mask, result, method, run.options, align)
-    return record_normals(session, run, result, channels, near_depth=depth, registration=registration)
+    lap("registration")
+    return record_normals(session, run, result, channels, near_depth=depth, registration=registration,
+                          timings=timings)
 
 
 def _register(images, valid, lights, mask, result, method, options, align):
@@ -298,14 +311,16 @@ def _register(images, valid, lights, mask, result, method, options, align):
     return result, found
 
 
-def record_normals(session, run, result, channels, near_depth=None, registration=None):
+def record_normals(session, run, result, channels, near_depth=None, registration=None, timings=None):
     """Write ``normals/`` from a :class:`PhotometricResult` and record the stage; returns the record.
 
     ``channels`` is the :class:`ChannelSums` gathered while the frames were read (the albedo's
     colour); ``near_depth`` :func:`pipeline.photometric.near_depth.refine_near_depth`'s report,
     kept when it ran a pass; ``registration`` :func:`pipeline.photometric.registration.check_registration`'s
-    finding (by frame index), kept by frame id.
+    finding (by frame index), kept by frame id; ``timings`` {step: wall seconds} of the run so
+    far, kept with the writing's seconds added as ``write``.
     """
+    written = time.perf_counter()
     outputs = _write_outputs(session, result, channels)
     counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
     extra = {"pixels": int(result.mask.sum()), "status_counts": counts, **run.extra()}
@@ -317,6 +332,8 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     if result.options.get("outline_check"):
         extra["outline_check"] = plain(result.options["outline_check"])
     extra.update(registration_record(registration, run.frames))
+    if timings is not None:
+        extra["timings"] = {**timings, "write": round(time.perf_counter() - written, 3)}
     transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
     extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer,
                                          registration=extra.get("registration"))
