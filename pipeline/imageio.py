@@ -60,10 +60,22 @@ def read_image_native(path):
 
 def read_image(path):
     """Read an image as float32 (H, W, C); integer types scaled so their maximum is 1.0."""
-    pixels = read_image_native(path)
+    return to_float(read_image_native(path))
+
+
+def to_float(pixels):
+    """Pixels as :func:`read_image` returns them: float32, integer types scaled so their maximum
+    is 1.0; float32 input is returned as it is (not copied)."""
     if np.issubdtype(pixels.dtype, np.integer):
-        return pixels.astype(np.float32) / np.float32(np.iinfo(pixels.dtype).max)
+        scaled = pixels.astype(np.float32)
+        return np.divide(scaled, np.float32(np.iinfo(pixels.dtype).max), out=scaled)
     return pixels.astype(np.float32, copy=False)
+
+
+def _above_half(dtype):
+    """(max + 1,) bool: which values of an integer type :func:`read_image` scales above 0.5."""
+    values = np.arange(np.iinfo(dtype).max + 1, dtype=dtype)
+    return to_float(values) > 0.5
 
 
 def image_size(path):
@@ -141,9 +153,22 @@ def _convert(pixels, bits):
     return np.clip(np.rint(np.nan_to_num(pixels) * top), 0, top).astype(dtype)
 
 
+_ABOVE_HALF = {}
+
+
 def read_mask(path):
     """Read a mask image as bool (H, W): true where any channel is above half scale."""
-    return (read_image(path) > 0.5).any(axis=2)
+    pixels = read_image_native(path)
+    if pixels.dtype in (np.uint8, np.uint16):
+        # a table of the 256 or 65536 values, decided as read_image's floats would be, instead
+        # of a float32 copy of the image
+        table = _ABOVE_HALF.get(pixels.dtype.type)
+        if table is None:
+            table = _ABOVE_HALF.setdefault(pixels.dtype.type, _above_half(pixels.dtype))
+        above = table[pixels]
+    else:
+        above = to_float(pixels) > 0.5
+    return above.any(axis=2) if above.shape[2] > 1 else above[:, :, 0]
 
 
 def write_mask(path, mask):

@@ -10,13 +10,16 @@ are the same three steps: :func:`begin_normals` (inputs, staleness, lights), a s
 :func:`record_normals` (outputs and the stage record).
 """
 
+import os
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import StageError
-from ..imageio import read_image, read_mask, write_image, write_mask, write_normal_png
+from ..imageio import image_size, read_image_native, read_mask, to_float, write_image, write_mask, write_normal_png
 from ..lightsio import read_lights_yaml
 from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS
 from ..progress import progress as progress_bar
@@ -28,7 +31,7 @@ from .near_lights import PointLights
 from .registration import align_frames, alignable, check_registration
 from .summary import normals_warnings
 
-__all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack",
+__all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack", "read_workers",
            "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "registration_record",
            "STAGE",
            "LIGHT_MODELS", "ALIGN_MODES", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS"]
@@ -204,25 +207,90 @@ class ChannelSums:
         self.sums = scaled if self.sums is None else np.add(self.sums, scaled, out=self.sums)
 
 
-def load_object_stack(session, frames, lights, channels=None):
-    """Grey linear stack (K, H, W) with intensities divided out, and valid (K, H, W) bool;
-    ``channels`` (a :class:`ChannelSums`) gathers the colour sums on the way."""
-    images, valid = [], []
-    for frame in frames:
-        linear = read_image(session.linear_path(frame))
-        gain = lights.intensities[frame["light"]]
-        gain = gain if gain.size == linear.shape[2] else np.full(linear.shape[2], gain.mean())
-        if (gain <= 0).any():
-            raise StageError(f"{session.path(LIGHTS)}: light {frame['light']} has a non-positive intensity")
-        scaled = linear / gain.astype(np.float32)
-        images.append(scaled.mean(axis=2))
-        valid.append(~read_mask(session.saturation_path(frame)))
-        if channels is not None:
-            channels.add(scaled, ~valid[-1])   # after the grey mean: it zeroes the saturated pixels
-        if images[-1].shape != images[0].shape:
-            raise StageError(f"{session.linear_path(frame)}: size {images[-1].shape} differs from "
-                             f"{session.linear_path(frames[0])}'s {images[0].shape}")
-    return np.stack(images), np.stack(valid)
+def read_workers():
+    """Threads that read frames: the cores this process may use, at most 8 (OpenImageIO's
+    read and the EXR decompression release the GIL; beyond the cores they only add frames in
+    flight, each one frame's worth of memory)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:   # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(8, cores))
+
+
+def load_object_stack(session, frames, lights, channels=None, out=None, workers=None):
+    """Grey linear stack (K, H, W) float32 with intensities divided out, and valid (K, H, W) bool;
+    ``channels`` (a :class:`ChannelSums`) gathers the colour sums on the way.
+
+    The frames are read by ``workers`` threads (default :func:`read_workers`), each straight into
+    its slice of the stack: a frame's only full-size temporary is the file's pixels (H, W, C),
+    divided by the intensities in place and averaged over its channels into the stack. The
+    channel sums are added in frame order, so every output is the same to the bit whatever the
+    thread count.
+
+    Parameters
+    ----------
+    out : (ndarray, ndarray), optional
+        The stack (K, H, W) float32 and valid (K, H, W) bool to fill (e.g. memory-mapped
+        files); default new arrays.
+    """
+    first = session.linear_path(frames[0])
+    height, width, _ = image_size(first)
+    shape = (len(frames), height, width)
+    if out is None:
+        images, valid = np.empty(shape, np.float32), np.empty(shape, bool)
+    else:
+        images, valid = out
+        if images.shape != shape or valid.shape != shape:
+            raise StageError(f"normals: the stack to fill is {images.shape}, the frames {shape}")
+    turn = threading.Condition()
+    state = {"next": 0, "failed": False}
+
+    def load(index):
+        frame = frames[index]
+        path = session.linear_path(frame)
+        scaled = None
+        try:
+            if state["failed"]:
+                return
+            pixels = read_image_native(path)
+            if pixels.shape[:2] != (height, width):
+                raise StageError(f"{path}: size {pixels.shape[:2]} differs from {first}'s {(height, width)}")
+            gain = lights.intensities[frame["light"]]
+            gain = gain if gain.size == pixels.shape[2] else np.full(pixels.shape[2], gain.mean())
+            if (gain <= 0).any():
+                raise StageError(f"{session.path(LIGHTS)}: light {frame['light']} has a non-positive intensity")
+            # the same float32 arithmetic as read_image then ``linear / gain``, in the file's buffer
+            scaled = to_float(pixels)
+            np.divide(scaled, gain.astype(np.float32), out=scaled)
+            np.mean(scaled, axis=2, out=images[index])
+            np.logical_not(read_mask(session.saturation_path(frame)), out=valid[index])
+        except BaseException:
+            state["failed"] = True
+            raise
+        finally:
+            # float sums depend on their order: frame k's colours are added after frame k - 1's
+            with turn:
+                turn.wait_for(lambda: state["next"] == index or state["failed"])
+                if channels is not None and not state["failed"]:
+                    channels.add(scaled, ~valid[index])
+                state["next"] += 1
+                turn.notify_all()
+
+    count = min(workers or read_workers(), len(frames))
+    if count == 1:
+        for index in range(len(frames)):
+            load(index)
+    else:
+        pool = ThreadPoolExecutor(count, thread_name_prefix="psrig-read")
+        try:
+            # submitted in frame order and taken in that order, so a task waiting for its turn
+            # never waits on one that has not started
+            for task in [pool.submit(load, index) for index in range(len(frames))]:
+                task.result()
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+    return images, valid
 
 
 def object_mask(session, run, images):

@@ -9,8 +9,9 @@ import html
 
 __all__ = ["record_rows", "stage_warnings", "flatten", "format_value", "STANDARD_KEYS"]
 
-#: record keys shown elsewhere (the stages table) or not meant for reading
-STANDARD_KEYS = ("params", "version", "status", "finished", "seconds", "inputs", "outputs", "warnings")
+#: record keys shown elsewhere (the stages table) or not meant for reading; ``timings`` (where a
+#: stage's seconds went, for benchmarks) are wall-clock traces like ``seconds``
+STANDARD_KEYS = ("params", "version", "status", "finished", "seconds", "timings", "inputs", "outputs", "warnings")
 _MAX_ITEMS = 12
 
 
