@@ -38,6 +38,10 @@ def register(sub):
                         help="frames that see the object shifted against the others (it or the camera "
                              "moved): auto (the default) aligns them by their measured shift and solves "
                              "again where the object's shading pins position, off only says")
+    parser.add_argument("--memory", default=None, metavar="SIZE",
+                        help="memory budget: bytes, 8G, 1500M or a share of the available memory such as 60%%"
+                             " (default 80%% of the available memory); a stack over it is solved in tiles "
+                             "from a memory-mapped file, a run that cannot fit is refused before it starts")
     parser.add_argument("--force", action="store_true", help="run even when the stage is up to date")
     parser.set_defaults(func=run)
 
@@ -60,11 +64,15 @@ def run(args):
                              lights_model=args.lights_model, near_depth=args.near_depth == "on",
                              specular_anchor=_switch(args.specular_anchor), frame_gains=_switch(args.frame_gains),
                              t_shadow=args.t_shadow, reject_k=args.reject_k, shape_prior=args.shape_prior,
-                             align=args.align_frames)
+                             align=args.align_frames, memory=args.memory)
     if record is None:
         print(f"{session.root}: normals up to date (use --force to rerun)")
         return 0
     print(f"{session.root}: normals ({args.method}) in {record['seconds']:.2f} s; {normals_summary(record)}")
+    budget = record.get("memory")
+    if budget:
+        print(f"{session.root}: normals: {budget['execution']}, estimated peak {budget['estimate_gb']:.2f} GB "
+              f"within a budget of {budget['budget_gb']:.2f} GB (--memory)")
     for warning in record.get("warnings", []):
         print(f"{session.root}: normals: warning: {warning}")
     return 0

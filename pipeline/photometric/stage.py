@@ -21,6 +21,7 @@ import numpy as np
 from ..errors import StageError
 from ..imageio import image_size, read_image_native, read_mask, to_float, write_image, write_mask, write_normal_png
 from ..lightsio import read_lights_yaml
+from ..memory import BASE_BYTES, budget_bytes, check_budget, format_gb
 from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS
 from ..progress import progress as progress_bar
 from ..yamlio import plain
@@ -306,8 +307,30 @@ def object_mask(session, run, images):
     return peak > 0.05 * np.percentile(peak, 99.5)
 
 
+#: bytes per pixel of the solve's maps and the writing of normals/ (normals, parameters, albedo,
+#: residual, status, counts and their file buffers), beyond the stack
+MAP_BYTES = 200
+
+
+def stack_shape(session, frames):
+    """(K, H, W, C) of the object frames, from the first file's header."""
+    height, width, channels = image_size(session.linear_path(frames[0]))
+    return len(frames), height, width, channels
+
+
+def normals_memory(shape, workers=1):
+    """Estimated peak bytes of the normals stage on a stack of ``shape`` (K, H, W, C):
+    ``in_memory`` (the stack and its saturation flags, K x H x W x 5 bytes, the frames in flight,
+    the colour sums, the maps) and ``tiled`` (the same without the stack, which is memory-mapped
+    and read a tile of rows at a time)."""
+    k, height, width, colours = shape
+    pixels = height * width
+    maps = BASE_BYTES + pixels * (MAP_BYTES + 4 * colours * (1 + workers))
+    return {"in_memory": maps + 5 * k * pixels, "tiled": maps}
+
+
 def normals_session(session, *, method="biquadratic", force=False, show_progress=True,
-                    lights_model="auto", near_depth=True, align="auto", **options):
+                    lights_model="auto", near_depth=True, align="auto", memory=None, **options):
     """Run the normals stage on a session; returns the stage record (None when up to date).
 
     ``options`` go to :func:`pipeline.photometric.estimate_normals` (t_low, t_shadow, reject_k,
@@ -320,6 +343,13 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     (:func:`pipeline.photometric.registration.check_registration`); ``align`` 'auto' aligns
     the frames found moved and solves again where the object pins position well
     (:func:`pipeline.photometric.registration.alignable`), 'off' only says.
+
+    ``memory`` is the budget (:func:`pipeline.memory.budget_bytes`: None for the default share
+    of the available memory, bytes or text such as '8G'). When the stack does not fit it, the
+    stage solves tiles from a memory-mapped stack (:mod:`pipeline.photometric.tiles`: the same
+    normals; frames found moved are named but not aligned); when even that does not fit, or the
+    run must be whole (near lights at an integrated depth), it refuses with StageError before
+    reading a frame. The record's ``memory`` says which, with the estimate and the budget.
     """
     if align not in ALIGN_MODES:
         raise StageError(f"normals: align must be one of {', '.join(ALIGN_MODES)}, got {align!r}")
@@ -327,6 +357,29 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
                         align=align, **options)
     if run is None:
         return None
+    budget = budget_bytes(memory)
+    workers = read_workers()
+    needs = normals_memory(stack_shape(session, run.frames), workers)
+    where = f"{session.root}: normals"
+    plan = {"budget_gb": round(budget / 2 ** 30, 2), "estimate_gb": round(needs["in_memory"] / 2 ** 30, 2)}
+    if needs["in_memory"] > budget:
+        if run.model == "near" and near_depth:
+            check_budget(where, needs["in_memory"], budget,
+                         "near lights at the integrated depth need the whole stack: give more with --memory, "
+                         "or --near-depth off to solve tiles from disk")
+        check_budget(where, needs["tiled"], budget, "give more with --memory, or bin the frames (psrig decode --bin 2)")
+        print(f"{where}: the stack needs about {format_gb(needs['in_memory'])}, over the budget of "
+              f"{format_gb(budget)}: solving tiles from a memory-mapped stack", flush=True)
+        from .tiles import solve_tiled   # tiles imports this module
+        record = solve_tiled(session, run, dict(plan, execution="tiled", estimate_gb=round(needs["tiled"] / 2 ** 30, 2)),
+                             method=method, force=force, lights_model=lights_model, near_depth=near_depth,
+                             align=align, **options)
+        if record is not None:
+            return record
+        # the tiles called for a whole-image correction (the specular anchor): in memory after all
+        check_budget(where, needs["in_memory"], budget, "the specular-peak correction needs the whole stack: "
+                     "give more with --memory, or --specular-anchor off")
+    plan["execution"] = "in memory"
     # the record's ``timings`` say where the stage's wall time went (read, solve, check, write)
     clock = [time.perf_counter()]
     timings = {}
@@ -357,7 +410,7 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     result, registration = _register(images, valid, lights, mask, result, method, run.options, align)
     lap("registration")
     return record_normals(session, run, result, channels, near_depth=depth, registration=registration,
-                          timings=timings)
+                          timings=timings, memory=plan)
 
 
 def _register(images, valid, lights, mask, result, method, options, align):
@@ -379,14 +432,15 @@ def _register(images, valid, lights, mask, result, method, options, align):
     return result, found
 
 
-def record_normals(session, run, result, channels, near_depth=None, registration=None, timings=None):
+def record_normals(session, run, result, channels, near_depth=None, registration=None, timings=None, memory=None):
     """Write ``normals/`` from a :class:`PhotometricResult` and record the stage; returns the record.
 
     ``channels`` is the :class:`ChannelSums` gathered while the frames were read (the albedo's
     colour); ``near_depth`` :func:`pipeline.photometric.near_depth.refine_near_depth`'s report,
     kept when it ran a pass; ``registration`` :func:`pipeline.photometric.registration.check_registration`'s
     finding (by frame index), kept by frame id; ``timings`` {step: wall seconds} of the run so
-    far, kept with the writing's seconds added as ``write``.
+    far, kept with the writing's seconds added as ``write``; ``memory`` the budget and how the
+    stage ran within it, kept as it is.
     """
     written = time.perf_counter()
     outputs = _write_outputs(session, result, channels)
@@ -400,6 +454,8 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     if result.options.get("outline_check"):
         extra["outline_check"] = plain(result.options["outline_check"])
     extra.update(registration_record(registration, run.frames))
+    if memory is not None:
+        extra["memory"] = memory
     if timings is not None:
         extra["timings"] = {**timings, "write": round(time.perf_counter() - written, 3)}
     transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
