@@ -30,13 +30,14 @@ import threading
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import psutil
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.imageio import write_image  # noqa: E402
+from pipeline.atomic import atomic_path  # noqa: E402
 from pipeline.session import Session  # noqa: E402
 
 STAGES = ("import", "decode", "calibrate", "lambert", "normals", "integrate", "report")
@@ -84,9 +85,15 @@ def render_frames(folder, shape, lights):
         half /= np.linalg.norm(half)
         shade = np.maximum(normals @ light.astype(np.float32), 0)
         gloss = 0.6 * np.maximum(normals @ half.astype(np.float32), 0) ** 60 * (shade > 0)
-        image = np.abs(rng.normal(0, 0.002, (height, width, 3))).astype(np.float32)
+        image = rng.standard_normal((height, width, 3), dtype=np.float32)
+        image = np.abs(image, out=image) * np.float32(0.002)
         image[inside] += 0.75 * albedo * shade[:, None] + gloss[:, None]
-        write_image(path, image, bits=16)
+        # the rounding of pipeline.imageio.write_image; OpenCV's fast PNG level (a 4 MP frame
+        # in a fifth of OpenImageIO's default level's time, for 1 % more bytes)
+        pixels = np.clip(np.rint(image * 65535), 0, 65535).astype(np.uint16)
+        with atomic_path(path) as tmp:
+            if not cv2.imwrite(str(tmp), pixels[:, :, ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+                sys.exit(f"{path}: cannot write the frame")
         print(f"\rrendered {k + 1}/{len(lights)} frames", end="", flush=True)
     print()
 

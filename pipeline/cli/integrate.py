@@ -52,6 +52,10 @@ def register(subparsers):
     mesh.add_argument("--max-slope", type=float, metavar="DEG", dest="max_slope_deg",
                       help="no face across a depth step steeper than this (and than the normals "
                            "say); default 80")
+    parser.add_argument("--memory", default=None, metavar="SIZE",
+                        help="memory budget: bytes, 8G, 1500M or a share of the available memory such as 60%%"
+                             " (default 80%% of the available memory); a session estimated to need more is "
+                             "refused before the solve")
     parser.add_argument("--force", action="store_true", help="rerun even if up to date")
     parser.set_defaults(func=run)
 
@@ -72,7 +76,7 @@ def run(args):
     if not args.session:
         raise InputError("give a SESSION folder, or --normals PNG --mask PNG --out DIR")
     session = open_session(args.session, args)
-    result = integrate_session(session, K=K, method=args.method, force=args.force, **options)
+    result = integrate_session(session, K=K, method=args.method, force=args.force, memory=args.memory, **options)
     if result is None:
         print(f"integrate: {session.root}: up to date (use --force to rerun)")
         return 0

@@ -61,3 +61,18 @@ def test_budget_shares_and_default_follow_the_available_memory(monkeypatch):
 def test_unreadable_budgets_are_refused(text):
     with pytest.raises(InputError, match="--memory"):
         memory.budget_bytes(text)
+
+
+def test_integrate_refuses_a_session_over_its_budget_and_records_the_budget(rgb_session):  # noqa: F811
+    from pipeline.integrate import integrate_session
+    from pipeline.integrate.stage import integrate_memory
+    from pipeline.imageio import read_mask
+
+    normals_session(rgb_session, method="lambert", show_progress=False)
+    with pytest.raises(StageError, match=r"integrate: needs about [\d.]+ GB of memory, the budget is 0.00 GB .*"
+                                         r"--memory"):
+        integrate_session(rgb_session, memory="1M")
+    assert rgb_session.stage("integrate") is None
+    integrate_session(rgb_session, memory="4G")
+    needs = integrate_memory(read_mask(rgb_session.path("normals/mask.png")))
+    assert rgb_session.stage("integrate")["memory"] == {"budget_gb": 4.0, "estimate_gb": round(needs / 2 ** 30, 2)}
