@@ -6,6 +6,8 @@ as stored. Writing picks the pixel type from the extension unless ``bits`` says 
 every write is atomic.
 """
 
+import os
+
 import numpy as np
 import OpenImageIO as oiio
 
@@ -22,6 +24,7 @@ __all__ = [
     "read_normal_png",
     "write_normal_png",
     "encode_normals_png",
+    "read_workers",
 ]
 
 _DEFAULT_BITS = {".exr": 32, ".png": 16, ".tif": 16, ".tiff": 16, ".jpg": 8, ".jpeg": 8, ".tga": 8}
@@ -210,3 +213,14 @@ def read_normal_png(path):
     mask &= norm[:, :, 0] > 0.5
     normals = np.where(mask[:, :, None], normals / np.maximum(norm, 1e-12), 0.0)
     return normals.astype(np.float32), mask
+
+
+def read_workers():
+    """Threads that read frames: the cores this process may use, at most 8 (OpenImageIO's
+    read and the EXR decompression release the GIL; beyond the cores they only add frames in
+    flight, each one frame's worth of memory)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:   # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(8, cores))

@@ -10,7 +10,6 @@ are the same three steps: :func:`begin_normals` (inputs, staleness, lights), a s
 :func:`record_normals` (outputs and the stage record).
 """
 
-import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -19,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import StageError
-from ..imageio import image_size, read_image_native, read_mask, to_float, write_image, write_mask, write_normal_png
+from ..imageio import image_size, read_image_native, read_workers, read_mask, to_float, write_image, write_mask, write_normal_png
 from ..lightsio import read_lights_yaml
 from ..memory import BASE_BYTES, budget_bytes, check_budget, format_gb
 from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS
@@ -206,17 +205,6 @@ class ChannelSums:
             return
         scaled[saturated] = 0.0
         self.sums = scaled if self.sums is None else np.add(self.sums, scaled, out=self.sums)
-
-
-def read_workers():
-    """Threads that read frames: the cores this process may use, at most 8 (OpenImageIO's
-    read and the EXR decompression release the GIL; beyond the cores they only add frames in
-    flight, each one frame's worth of memory)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:   # not on Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(8, cores))
 
 
 def load_object_stack(session, frames, lights, channels=None, out=None, workers=None):

@@ -14,13 +14,14 @@ current while the files it shows and the other stages' records are unchanged.
 """
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from ..atomic import atomic_write_text
 from ..errors import StageError
 from ..evaluate import ERROR_TOP_DEG
-from ..imageio import read_image, write_image
+from ..imageio import read_image, read_workers, write_image
 from ..paths import (ALBEDO, DEPTH, LIGHTS, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, REPORT,
                      RESIDUAL, SHADED, STATUS_MAP)
 from ..session import STAGES, now_iso
@@ -60,10 +61,13 @@ def _writer(session, written):
 def _thumbnails(session, write):
     """One thumbnail per decoded frame: [(kind, [Figure])], one white per frame kind."""
     groups = {}
-    for frame in session.stage_frames():  # an exposure bracket: its merged frame
-        path = session.linear_path(frame)
-        if path.is_file():
-            groups.setdefault(frame["kind"], []).append((frame, shrink(read_image(path), THUMB_SIDE)))
+    frames = [f for f in session.stage_frames() if session.linear_path(f).is_file()]  # a bracket: its merge
+    # frames read and shrunk by threads (OpenImageIO's read releases the GIL), one full frame
+    # per thread in memory; map keeps the frames' order
+    with ThreadPoolExecutor(read_workers(), thread_name_prefix="psrig-thumbs") as pool:
+        smalls = pool.map(lambda f: shrink(read_image(session.linear_path(f)), THUMB_SIDE), frames)
+        for frame, small in zip(frames, smalls):
+            groups.setdefault(frame["kind"], []).append((frame, small))
     out = []
     for kind, items in groups.items():
         white = robust_max(np.concatenate([t.ravel() for _, t in items]))
