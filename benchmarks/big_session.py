@@ -9,7 +9,9 @@ directions (a hemisphere of elevations 20-80 degrees) into 16-bit PNG frames (ca
 ``--folder``/frames-<mp>mp-<lights>, so later runs skip the rendering), then runs, each as its
 own ``python -m pipeline`` process: ``import images`` (with the lights file), ``decode``,
 ``calibrate`` (the imported lights), ``normals --method lambert``, ``normals`` (the default),
-``integrate`` and ``report``. Per stage it prints the wall time, the peak RSS of the stage's
+``integrate`` and ``report``. Per stage it prints the wall time, the CPU time of the stage's
+processes (``wait4``: user + system, every thread and waited-for child; on a loaded shared
+machine the steadier figure), the peak RSS of the stage's
 process tree (psutil, sampled every 50 ms: the decode workers' memory is summed) and of its
 largest single process (``ru_maxrss`` from ``wait4``), each against the grey float32 stack
 (K x H x W x 4 bytes), and for the normals stages the shares of the stage's record ``timings``
@@ -148,7 +150,7 @@ def run_stage(args):
     child.returncode = os.waitstatus_to_exitcode(status)
     if child.returncode:
         sys.exit(f"`{' '.join(command)}` failed ({child.returncode}):\n{output[0].decode(errors='replace')}")
-    return wall, max(tree, usage.ru_maxrss * 1024), usage.ru_maxrss * 1024
+    return wall, max(tree, usage.ru_maxrss * 1024), usage.ru_maxrss * 1024, usage.ru_utime + usage.ru_stime
 
 
 def main():
@@ -175,6 +177,7 @@ def main():
     grey = args.lights * shape[0] * shape[1] * 4
     print(f"{shape[1]} x {shape[0]} ({shape[0] * shape[1] / 1e6:.2f} MP) x {args.lights} lights; "
           f"grey float32 stack {grey / 1e9:.2f} GB; load {os.getloadavg()[0]:.2f}; {sys.executable}")
+    print(f"stages from {ROOT}")
     memory = ["--memory", args.memory] if args.memory else []
     commands = {
         "import": ["import", "images", str(session), "--object", str(frames / "frame-*.png"),
@@ -186,10 +189,10 @@ def main():
         "integrate": ["integrate", str(session), *memory],
         "report": ["report", str(session), "--no-eval"],
     }
-    print(f"{'stage':10} {'wall s':>8} {'tree GB':>8} {'x grey':>7} {'proc GB':>8} {'x grey':>7}  timings")
+    print(f"{'stage':10} {'wall s':>8} {'cpu s':>7} {'tree GB':>8} {'x grey':>7} {'proc GB':>8} {'x grey':>7}  timings")
     walls, peaks, shares = {}, {}, {}
     for stage in stages:
-        wall, tree, proc = run_stage(commands[stage])
+        wall, tree, proc, cpu = run_stage(commands[stage])
         walls[stage], peaks[stage] = wall, tree
         note = ""
         if stage in ("lambert", "normals"):
@@ -198,7 +201,7 @@ def main():
             shares[stage] = timings.get("solve", 0.0) / wall
             note = " ".join(f"{k} {v:.1f}" for k, v in timings.items()) + \
                 f" (solve {shares[stage]:.0%} of the stage's wall, {timings.get('solve', 0) / total:.0%} of its timings)"
-        print(f"{stage:10} {wall:8.1f} {tree / 1e9:8.2f} {tree / grey:7.2f} {proc / 1e9:8.2f} {proc / grey:7.2f}  {note}",
+        print(f"{stage:10} {wall:8.1f} {cpu:7.1f} {tree / 1e9:8.2f} {tree / grey:7.2f} {proc / 1e9:8.2f} {proc / grey:7.2f}  {note}",
               flush=True)
 
     print("targets:")
