@@ -13,7 +13,8 @@ own ``python -m pipeline`` process: ``import images`` (with the lights file), ``
 processes (``wait4``: user + system, every thread and waited-for child; on a loaded shared
 machine the steadier figure), the peak RSS of the stage's
 process tree (psutil, sampled every 50 ms: the decode workers' memory is summed) and of its
-largest single process (``ru_maxrss`` from ``wait4``), each against the grey float32 stack
+largest single process (``ru_maxrss`` from ``wait4``) and the tree's peak without file-backed
+pages (``anon``: RSS less psutil's ``shared``), each against the grey float32 stack
 (K x H x W x 4 bytes), and for the normals stages the shares of the stage's record ``timings``
 (read, solve, registration, write). Then the issue's targets at this size: ``normals --method
 lambert`` / ``decode`` wall (<= 0.5), the default's solve share (>= 75 %), every stage's peak /
@@ -101,10 +102,12 @@ def render_frames(folder, shape, lights):
 
 
 class PeakSampler:
-    """Peak summed RSS (bytes) of a process and its descendants, sampled every ``interval`` s."""
+    """Peak summed RSS (bytes) of a process and its descendants, sampled every ``interval`` s;
+    ``anon`` the peak of RSS less its file-backed pages (memory-mapped files, which the kernel
+    reclaims under pressure: what a memory-mapped stack leaves is no cause for the OOM killer)."""
 
     def __init__(self, pid, interval=0.05):
-        self.pid, self.interval, self.peak = pid, interval, 0
+        self.pid, self.interval, self.peak, self.anon = pid, interval, 0, 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -115,16 +118,17 @@ class PeakSampler:
         except psutil.NoSuchProcess:
             return
         while not self._stop.is_set():
-            total = 0
+            total = anon = 0
             try:
                 for proc in [top] + top.children(recursive=True):
                     try:
-                        total += proc.memory_info().rss
+                        info = proc.memory_info()
+                        total, anon = total + info.rss, anon + info.rss - info.shared
                     except psutil.NoSuchProcess:
                         pass
             except psutil.NoSuchProcess:
                 return
-            self.peak = max(self.peak, total)
+            self.peak, self.anon = max(self.peak, total), max(self.anon, anon)
             self._stop.wait(self.interval)
 
     def stop(self):
@@ -150,7 +154,8 @@ def run_stage(args):
     child.returncode = os.waitstatus_to_exitcode(status)
     if child.returncode:
         sys.exit(f"`{' '.join(command)}` failed ({child.returncode}):\n{output[0].decode(errors='replace')}")
-    return wall, max(tree, usage.ru_maxrss * 1024), usage.ru_maxrss * 1024, usage.ru_utime + usage.ru_stime
+    return wall, max(tree, usage.ru_maxrss * 1024), usage.ru_maxrss * 1024, usage.ru_utime + usage.ru_stime, \
+        sampler.anon
 
 
 def main():
@@ -189,11 +194,11 @@ def main():
         "integrate": ["integrate", str(session), *memory],
         "report": ["report", str(session), "--no-eval"],
     }
-    print(f"{'stage':10} {'wall s':>8} {'cpu s':>7} {'tree GB':>8} {'x grey':>7} {'proc GB':>8} {'x grey':>7}  timings")
-    walls, peaks, shares = {}, {}, {}
+    print(f"{'stage':10} {'wall s':>8} {'cpu s':>7} {'tree GB':>8} {'x grey':>7} {'proc GB':>8} {'x grey':>7} {'anon GB':>8} {'x grey':>7}  timings")
+    walls, peaks, shares, cpus, anons = {}, {}, {}, {}, {}
     for stage in stages:
-        wall, tree, proc, cpu = run_stage(commands[stage])
-        walls[stage], peaks[stage] = wall, tree
+        wall, tree, proc, cpu, anon = run_stage(commands[stage])
+        walls[stage], peaks[stage], cpus[stage], anons[stage] = wall, tree, cpu, anon
         note = ""
         if stage in ("lambert", "normals"):
             timings = Session.open(session).stage("normals").get("timings") or {}
@@ -201,19 +206,21 @@ def main():
             shares[stage] = timings.get("solve", 0.0) / wall
             note = " ".join(f"{k} {v:.1f}" for k, v in timings.items()) + \
                 f" (solve {shares[stage]:.0%} of the stage's wall, {timings.get('solve', 0) / total:.0%} of its timings)"
-        print(f"{stage:10} {wall:8.1f} {cpu:7.1f} {tree / 1e9:8.2f} {tree / grey:7.2f} {proc / 1e9:8.2f} {proc / grey:7.2f}  {note}",
+        print(f"{stage:10} {wall:8.1f} {cpu:7.1f} {tree / 1e9:8.2f} {tree / grey:7.2f} {proc / 1e9:8.2f} {proc / grey:7.2f} {anon / 1e9:8.2f} {anon / grey:7.2f}  {note}",
               flush=True)
 
     print("targets:")
     if "lambert" in walls and "decode" in walls:
         ratio = walls["lambert"] / walls["decode"]
-        print(f"  normals --method lambert / decode wall: {ratio:.2f} (target <= {TARGET_LAMBERT})")
+        print(f"  normals --method lambert / decode wall: {ratio:.2f} (target <= {TARGET_LAMBERT}); "
+              f"CPU {cpus['lambert'] / cpus['decode']:.2f}")
     if "normals" in shares:
         print(f"  default normals: solve share of the stage's wall: {shares['normals']:.0%} "
               f"(target >= {TARGET_SOLVE:.0%})")
     if peaks:
         worst = max(peaks, key=peaks.get)
-        print(f"  largest peak / grey stack: {peaks[worst] / grey:.2f} ({worst}; target <= {TARGET_PEAK})")
+        print(f"  largest peak / grey stack: {peaks[worst] / grey:.2f} ({worst}; target <= {TARGET_PEAK}); "
+              f"without file-backed pages {max(anons.values()) / grey:.2f} ({max(anons, key=anons.get)})")
     per_pixel = {s: (walls[s] / (shape[0] * shape[1] * args.lights) * 1e9, peaks[s] / (shape[0] * shape[1]))
                  for s in walls}
     print("per pixel x light (ns) and peak bytes per pixel:",
