@@ -6,7 +6,8 @@ Each 16-bit frame becomes the float32 RGB frame decode writes for it (linear, / 
 by psrig's own encoder (:mod:`pipeline.decode.exr`: 'none' and 'zip', ISA-L level 1, what
 ``psrig decode`` writes) and by OpenImageIO with each lossless codec OpenEXR offers (none, rle,
 zips, zip, piz). Per codec: bytes against the raw floats, the write seconds (one thread) and
-the read seconds through :func:`pipeline.imageio.read_image_native` (best of ``--repeat``,
+the read seconds, wall and CPU (this process, OpenEXR's threads included), through
+:func:`pipeline.imageio.read_image_native` (best of ``--repeat``,
 OpenEXR's own thread pool set to ``--threads``; the normals stage reads frames with a thread
 pool of its own, see :func:`pipeline.photometric.stage.read_workers`), summed over the frames.
 """
@@ -49,7 +50,7 @@ def main():
     raw = sum(f.nbytes for f in frames)
     print(f"{len(frames)} frames {frames[0].shape[1]} x {frames[0].shape[0]}, {raw / 1e6:.0f} MB of floats; "
           f"exr_threads {args.threads}")
-    print(f"{'codec':11} {'ratio':>6} {'write s':>8} {'read s':>7} {'read MB/s':>9}")
+    print(f"{'codec':11} {'ratio':>6} {'write s':>8} {'read s':>7} {'read MB/s':>9} {'read CPU s':>10}")
     with tempfile.TemporaryDirectory() as folder:
         for codec in CODECS:
             paths = [Path(folder) / f"{codec}-{i}.exr" for i in range(len(frames))]
@@ -57,15 +58,16 @@ def main():
             for path, pixels in zip(paths, frames):
                 write(path, pixels, codec)
             wrote = time.perf_counter() - start
-            reads = []
+            reads, cpus = [], []
             for _ in range(args.repeat):
-                start = time.perf_counter()
+                start, cpu = time.perf_counter(), time.process_time()
                 for path, pixels in zip(paths, frames):
                     back = read_image_native(path)
                 reads.append(time.perf_counter() - start)
+                cpus.append(time.process_time() - cpu)
             assert np.array_equal(back, pixels), codec   # lossless
             size = sum(p.stat().st_size for p in paths)
-            print(f"{codec:11} {raw / size:6.2f} {wrote:8.2f} {min(reads):7.2f} {raw / min(reads) / 1e6:9.0f}",
+            print(f"{codec:11} {raw / size:6.2f} {wrote:8.2f} {min(reads):7.2f} {raw / min(reads) / 1e6:9.0f} {min(cpus):10.2f}",
                   flush=True)
 
 
