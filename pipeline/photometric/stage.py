@@ -397,6 +397,8 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     # after the solve: every frame against the model's rendering of it (the object or camera moved?)
     result, registration = _register(images, valid, lights, mask, result, method, run.options, align)
     lap("registration")
+    # the stack is done with: the files' buffers are not to come on top of it
+    del images, valid, lights
     return record_normals(session, run, result, channels, near_depth=depth, registration=registration,
                           timings=timings, memory=plan)
 
