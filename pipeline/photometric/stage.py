@@ -31,7 +31,7 @@ from .near_lights import PointLights
 from .registration import align_frames, alignable, check_registration
 from .summary import normals_warnings
 
-__all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack", "read_workers",
+__all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack", "solve_without", "read_workers",
            "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "registration_record",
            "STAGE",
            "LIGHT_MODELS", "ALIGN_MODES", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS"]
@@ -411,7 +411,8 @@ def _register(images, valid, lights, mask, result, method, options, align):
         return estimate_normals(stack, lights[chosen], mask, method=method, valid=usable, **options)
 
     found = check_registration(images, result, lights, valid,
-                               resolve=lambda keep: solve(images[keep], valid[keep], keep))
+                               resolve=lambda keep: solve_without(images, valid, keep,
+                                                                  lambda i, v: solve(i, v, keep)))
     if found.get("moved"):
         if align == "auto" and alignable(found):
             result = solve(*align_frames(images, valid, found["moved"]))
@@ -420,6 +421,36 @@ def _register(images, valid, lights, mask, result, method, options, align):
             found["not_aligned"] = "psrig normals --align-frames off" if align != "auto" else \
                 f"the object's shading pins position only to about {found['median_departure_px']:.1f} px"
     return result, found
+
+
+def solve_without(images, valid, keep, solve):
+    """``solve(images[keep], valid[keep])`` without a copy of the stack: the kept frames are moved
+    to the front of ``images`` and ``valid`` (K, H, W) in place, in order, the others set aside,
+    and every frame put back afterwards (also when ``solve`` raises).
+
+    Parameters
+    ----------
+    images, valid : ndarray (K, H, W)
+        float32 and bool, changed during the call and restored.
+    keep : ndarray (K,) bool
+    solve : callable
+        ``solve(images (N, H, W), valid (N, H, W))`` on the N kept frames, contiguous views.
+    """
+    keep = np.asarray(keep, bool)
+    kept, dropped = np.flatnonzero(keep), np.flatnonzero(~keep)
+    aside = images[dropped], valid[dropped]   # copies: only the frames left out
+    try:
+        for index, frame in enumerate(kept):
+            if index != frame:
+                images[index], valid[index] = images[frame], valid[frame]
+        return solve(images[:len(kept)], valid[:len(kept)])
+    finally:
+        # backwards: frame kept[i] >= i, so no slot is written before its frame has moved
+        for index in range(len(kept) - 1, -1, -1):
+            frame = kept[index]
+            if index != frame:
+                images[frame], valid[frame] = images[index], valid[index]
+        images[dropped], valid[dropped] = aside
 
 
 def record_normals(session, run, result, channels, near_depth=None, registration=None, timings=None, memory=None):

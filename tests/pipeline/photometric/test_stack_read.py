@@ -93,3 +93,31 @@ def test_a_frame_of_another_size_is_refused_by_name(rgb_session):
     write_image(odd, np.zeros((10, 12, 3), np.float32))
     with pytest.raises(StageError, match=f"{odd.name}: size \\(10, 12\\) differs"):
         load_object_stack(rgb_session, run.frames, run.lights, ChannelSums(), workers=3)
+
+
+@pytest.mark.parametrize("keep", [[1, 1, 0, 1, 0, 0, 1, 1], [0, 1, 1, 1, 1, 1, 1, 1], [1] * 7 + [0], [1] * 8])
+def test_solving_without_frames_sees_their_copy_and_restores_the_stack(keep):
+    rng = np.random.default_rng(1)
+    images = rng.random((8, 5, 6), np.float32)
+    valid = rng.random((8, 5, 6)) > 0.2
+    before = images.copy(), valid.copy()
+    keep = np.array(keep, bool)
+    seen = stage_module.solve_without(images, valid, keep, lambda i, v: (i.copy(), v.copy()))
+    assert np.array_equal(seen[0], before[0][keep]) and np.array_equal(seen[1], before[1][keep])
+    assert np.array_equal(images, before[0]) and np.array_equal(valid, before[1])
+    with pytest.raises(ZeroDivisionError):
+        stage_module.solve_without(images, valid, keep, lambda i, v: 1 / 0)
+    assert np.array_equal(images, before[0]) and np.array_equal(valid, before[1])
+
+
+def test_normals_without_frames_are_those_of_the_copied_stack(rgb_session):
+    from pipeline.photometric import estimate_normals
+
+    run = begin_normals(rgb_session, force=True)
+    images, valid = load_object_stack(rgb_session, run.frames, run.lights)
+    lights_used, mask = run.solver_lights(images.shape[1:]), images.max(axis=0) > 0.05
+    keep = np.array([1, 1, 0, 1, 1, 1, 0, 1], bool)
+    expected = estimate_normals(images[keep], lights_used[keep], mask, valid=valid[keep])
+    got = stage_module.solve_without(images, valid, keep,
+                                     lambda i, v: estimate_normals(i, lights_used[keep], mask, valid=v))
+    assert np.array_equal(got.normals, expected.normals) and np.array_equal(got.status, expected.status)
