@@ -2,7 +2,7 @@
 
     python benchmarks/big_session.py [--mp 4] [--lights 96] [--folder /tmp/psrig-big]
                                      [--stages import,decode,calibrate,lambert,normals,integrate,report]
-                                     [--memory SIZE] [--keep]
+                                     [--memory SIZE] [--keep] [--force]
 
 Renders a glossy RGB sphere on a dark, slightly noisy background under ``--lights`` known
 directions (a hemisphere of elevations 20-80 degrees) into 16-bit PNG frames (cached in
@@ -167,6 +167,8 @@ def main():
     parser.add_argument("--stages", default=",".join(STAGES), help="stages to run, in order")
     parser.add_argument("--memory", help="--memory given to normals and integrate (when the CLI has it)")
     parser.add_argument("--keep", action="store_true", help="keep the session folder afterwards")
+    parser.add_argument("--force", action="store_true",
+                        help="pass --force to decode, calibrate, normals, integrate and report (a kept session)")
     args = parser.parse_args()
     stages = [s for s in args.stages.split(",") if s]
     unknown = set(stages) - set(STAGES)
@@ -184,15 +186,16 @@ def main():
           f"grey float32 stack {grey / 1e9:.2f} GB; load {os.getloadavg()[0]:.2f}; {sys.executable}")
     print(f"stages from {ROOT}")
     memory = ["--memory", args.memory] if args.memory else []
+    force = ["--force"] if args.force else []
     commands = {
         "import": ["import", "images", str(session), "--object", str(frames / "frame-*.png"),
                    "--lights", str(frames / "lights.txt")],
-        "decode": ["decode", str(session)],
-        "calibrate": ["calibrate", str(session)],
-        "lambert": ["normals", str(session), "--method", "lambert", *memory],
-        "normals": ["normals", str(session), *memory],
-        "integrate": ["integrate", str(session), *memory],
-        "report": ["report", str(session), "--no-eval"],
+        "decode": ["decode", str(session), *force],
+        "calibrate": ["calibrate", str(session), *force],
+        "lambert": ["normals", str(session), "--method", "lambert", *memory, *force],
+        "normals": ["normals", str(session), *memory, *force],
+        "integrate": ["integrate", str(session), *memory, *force],
+        "report": ["report", str(session), "--no-eval", *force],
     }
     print(f"{'stage':10} {'wall s':>8} {'cpu s':>7} {'tree GB':>8} {'x grey':>7} {'proc GB':>8} {'x grey':>7} {'anon GB':>8} {'x grey':>7}  timings")
     walls, peaks, shares, cpus, anons = {}, {}, {}, {}, {}
