@@ -156,9 +156,10 @@ def write_depth_outputs(folder, result, normals, K=None, info=None, albedo=None,
     return summary
 
 
-#: bytes the integration holds per object pixel (the sparse system, its preconditioner and the
-#: solver's vectors) and per image pixel (normals, albedo, depth, the mesh's buffers)
-OBJECT_BYTES = 1400
+#: bytes the integration holds per object pixel (the sparse system, its preconditioner, the
+#: solver's vectors, the mesh) and per image pixel (normals, albedo, depth); measured peaks are
+#: below this (docs/big-captures.md)
+OBJECT_BYTES = 800
 IMAGE_BYTES = 100
 
 
