@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import StageError
 from ..imageio import image_size, read_image_native, read_workers, read_mask, to_float, write_image, write_mask, write_normal_png
 from ..lightsio import read_lights_yaml
-from ..memory import BASE_BYTES, budget_bytes, check_budget, format_gb
+from ..jit import BASE_BYTES, budget_bytes, check_budget, format_gb
 from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS
 from ..progress import progress as progress_bar
 from ..yamlio import plain
@@ -318,7 +318,7 @@ def normals_memory(shape, workers=1):
 
 
 def normals_session(session, *, method="biquadratic", force=False, show_progress=True,
-                    lights_model="auto", near_depth=True, align="auto", memory=None, **options):
+                    lights_model="auto", near_depth=True, align="auto", memory=None, tiled=None, **options):
     """Run the normals stage on a session; returns the stage record (None when up to date).
 
     ``options`` go to :func:`pipeline.photometric.estimate_normals` (t_low, t_shadow, reject_k,
@@ -332,10 +332,12 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
     the frames found moved and solves again where the object pins position well
     (:func:`pipeline.photometric.registration.alignable`), 'off' only says.
 
-    ``memory`` is the budget (:func:`pipeline.memory.budget_bytes`: None for the default share
+    ``memory`` is the budget (:func:`pipeline.jit.budget_bytes`: None for the default share
     of the available memory, bytes or text such as '8G'). When the stack does not fit it, the
     stage solves tiles from a memory-mapped stack (:mod:`pipeline.photometric.tiles`: the same
-    normals; frames found moved are named but not aligned); when even that does not fit, or the
+    normals; frames found moved are named but not aligned) with ``tiled``
+    (:func:`pipeline.photometric.tiles.solve_tiled`, which :func:`pipeline.photometric.normals_session`
+    passes; this module does not import the tiles); when even that does not fit, or the
     run must be whole (near lights at an integrated depth), it refuses with StageError before
     reading a frame. The record's ``memory`` says which, with the estimate and the budget.
     """
@@ -358,8 +360,9 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
         check_budget(where, needs["tiled"], budget, "give more with --memory, or bin the frames (psrig decode --bin 2)")
         print(f"{where}: the stack needs about {format_gb(needs['in_memory'])}, over the budget of "
               f"{format_gb(budget)}: solving tiles from a memory-mapped stack", flush=True)
-        from .tiles import solve_tiled   # tiles imports this module
-        record = solve_tiled(session, run, dict(plan, execution="tiled", estimate_gb=round(needs["tiled"] / 2 ** 30, 2)),
+        if tiled is None:
+            check_budget(where, needs["in_memory"], budget, "give more with --memory")
+        record = tiled(session, run, dict(plan, execution="tiled", estimate_gb=round(needs["tiled"] / 2 ** 30, 2)),
                              method=method, force=force, lights_model=lights_model, near_depth=near_depth,
                              align=align, **options)
         if record is not None:

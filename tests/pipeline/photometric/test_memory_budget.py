@@ -4,7 +4,7 @@ not fit (the same normals as in memory), a clear refusal when nothing fits."""
 import numpy as np
 import pytest
 
-from pipeline import memory
+from pipeline import jit as memory
 from pipeline.errors import InputError, StageError
 from pipeline.paths import NORMALS
 from pipeline.photometric import normals_session
