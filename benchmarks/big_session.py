@@ -215,8 +215,7 @@ def main():
     print("targets:")
     if "lambert" in walls and "decode" in walls:
         ratio = walls["lambert"] / walls["decode"]
-        print(f"  normals --method lambert / decode wall: {ratio:.2f} (target <= {TARGET_LAMBERT}); "
-              f"CPU {cpus['lambert'] / cpus['decode']:.2f}")
+        print(f"  normals --method lambert / decode wall: {ratio:.2f} (target <= {TARGET_LAMBERT})")
     if "normals" in shares:
         print(f"  default normals: solve share of the stage's wall: {shares['normals']:.0%} "
               f"(target >= {TARGET_SOLVE:.0%})")
