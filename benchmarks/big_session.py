@@ -204,11 +204,15 @@ def main():
         walls[stage], peaks[stage], cpus[stage], anons[stage] = wall, tree, cpu, anon
         note = ""
         if stage in ("lambert", "normals"):
-            timings = Session.open(session).stage("normals").get("timings") or {}
-            total = sum(timings.values()) or 1.0
+            timings = dict(Session.open(session).stage("normals").get("timings") or {})
+            steps = timings.pop("cpu", {})
             shares[stage] = timings.get("solve", 0.0) / wall
             note = " ".join(f"{k} {v:.1f}" for k, v in timings.items()) + \
-                f" (solve {shares[stage]:.0%} of the stage's wall, {timings.get('solve', 0) / total:.0%} of its timings)"
+                f" (solve {shares[stage]:.0%} of the stage's wall"
+            if steps:
+                note += f", {steps.get('solve', 0) / max(sum(steps.values()), 1e-9):.0%} of its CPU; CPU " + \
+                    " ".join(f"{k} {v:.1f}" for k, v in steps.items())
+            note += ")"
         print(f"{stage:10} {wall:8.1f} {cpu:7.1f} {tree / 1e9:8.2f} {tree / grey:7.2f} {proc / 1e9:8.2f} {proc / grey:7.2f} {anon / 1e9:8.2f} {anon / grey:7.2f}  {note}",
               flush=True)
 

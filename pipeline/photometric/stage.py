@@ -372,13 +372,15 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
                      "give more with --memory, or --specular-anchor off")
     plan["execution"] = "in memory"
     # the record's ``timings`` say where the stage's wall time went (read, solve, check, write)
-    clock = [time.perf_counter()]
-    timings = {}
+    # and ``cpu`` the process's CPU seconds (every thread) of each, steadier on a shared machine
+    clock = [time.perf_counter(), time.process_time()]
+    timings = {"cpu": {}}
 
     def lap(name):
-        now = time.perf_counter()
-        timings[name] = round(now - clock[0], 3)
-        clock[0] = now
+        now = time.perf_counter(), time.process_time()
+        timings[name] = round(now[0] - clock[0], 3)
+        timings["cpu"][name] = round(now[1] - clock[1], 3)
+        clock[:] = now
 
     channels = ChannelSums()
     images, valid = load_object_stack(session, run.frames, run.lights, channels)
@@ -463,10 +465,10 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     colour); ``near_depth`` :func:`pipeline.photometric.near_depth.refine_near_depth`'s report,
     kept when it ran a pass; ``registration`` :func:`pipeline.photometric.registration.check_registration`'s
     finding (by frame index), kept by frame id; ``timings`` {step: wall seconds} of the run so
-    far, kept with the writing's seconds added as ``write``; ``memory`` the budget and how the
+    far (and ``cpu``: {step: CPU seconds}), kept with the writing's seconds added as ``write``; ``memory`` the budget and how the
     stage ran within it, kept as it is.
     """
-    written = time.perf_counter()
+    written = time.perf_counter(), time.process_time()
     outputs = _write_outputs(session, result, channels)
     counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
     extra = {"pixels": int(result.mask.sum()), "status_counts": counts, **run.extra()}
@@ -481,7 +483,9 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     if memory is not None:
         extra["memory"] = memory
     if timings is not None:
-        extra["timings"] = {**timings, "write": round(time.perf_counter() - written, 3)}
+        extra["timings"] = {**timings, "write": round(time.perf_counter() - written[0], 3)}
+        if "cpu" in timings:
+            extra["timings"]["cpu"] = {**timings["cpu"], "write": round(time.process_time() - written[1], 3)}
     transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
     extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer,
                                          registration=extra.get("registration"))

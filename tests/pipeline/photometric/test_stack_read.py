@@ -121,3 +121,13 @@ def test_normals_without_frames_are_those_of_the_copied_stack(rgb_session):
     got = stage_module.solve_without(images, valid, keep,
                                      lambda i, v: estimate_normals(i, lights_used[keep], mask, valid=v))
     assert np.array_equal(got.normals, expected.normals) and np.array_equal(got.status, expected.status)
+
+
+def test_the_record_says_where_the_stage_time_went(rgb_session):
+    record = normals_session(rgb_session, method="lambert", force=True, show_progress=False)
+    timings = record["timings"]
+    assert set(timings) == {"read", "solve", "registration", "write", "cpu"}
+    assert set(timings["cpu"]) == {"read", "solve", "registration", "write"}
+    walls = [v for k, v in timings.items() if k != "cpu"]
+    assert all(v >= 0 for v in walls + list(timings["cpu"].values()))
+    assert sum(walls) <= record["seconds"] + 0.01
