@@ -197,7 +197,8 @@ def main():
         "integrate": ["integrate", str(session), *memory, *force],
         "report": ["report", str(session), "--no-eval", *force],
     }
-    print(f"{'stage':10} {'wall s':>8} {'cpu s':>7} {'tree GB':>8} {'x grey':>7} {'proc GB':>8} {'x grey':>7} {'anon GB':>8} {'x grey':>7}  timings")
+    print(f"{'stage':10} {'wall s':>8} {'cpu s':>7} " + " ".join(f"{name:>8} {'x grey':>7}" for name in
+                                                         ("tree GB", "proc GB", "anon GB")) + "  timings")
     walls, peaks, shares, cpus, anons = {}, {}, {}, {}, {}
     for stage in stages:
         wall, tree, proc, cpu, anon = run_stage(commands[stage])
@@ -213,8 +214,8 @@ def main():
                 note += f", {steps.get('solve', 0) / max(sum(steps.values()), 1e-9):.0%} of its CPU; CPU " + \
                     " ".join(f"{k} {v:.1f}" for k, v in steps.items())
             note += ")"
-        print(f"{stage:10} {wall:8.1f} {cpu:7.1f} {tree / 1e9:8.2f} {tree / grey:7.2f} {proc / 1e9:8.2f} {proc / grey:7.2f} {anon / 1e9:8.2f} {anon / grey:7.2f}  {note}",
-              flush=True)
+        sizes = " ".join(f"{size / 1e9:8.2f} {size / grey:7.2f}" for size in (tree, proc, anon))
+        print(f"{stage:10} {wall:8.1f} {cpu:7.1f} {sizes}  {note}", flush=True)
 
     print("targets:")
     if "lambert" in walls and "decode" in walls:

@@ -67,7 +67,8 @@ def main():
                 cpus.append(time.process_time() - cpu)
             assert np.array_equal(back, pixels), codec   # lossless
             size = sum(p.stat().st_size for p in paths)
-            print(f"{codec:11} {raw / size:6.2f} {wrote:8.2f} {min(reads):7.2f} {raw / min(reads) / 1e6:9.0f} {min(cpus):10.2f}",
+            print(f"{codec:11} {raw / size:6.2f} {wrote:8.2f} {min(reads):7.2f} {raw / min(reads) / 1e6:9.0f} "
+                  f"{min(cpus):10.2f}",
                   flush=True)
 
 

@@ -22,7 +22,8 @@ from ..paths import ALBEDO, DEPTH, INTEGRATION, MESH, MESH_OBJ, MESH_TEXTURE, NO
 from .mesh import MAX_SLOPE_DEG, albedo_colours, build_mesh, write_obj, write_ply, write_shaded
 from .solve import check_intrinsics, integrate_normals_full
 
-__all__ = ["integrate_session", "integrate_memory", "write_depth_outputs", "read_intrinsics", "integrate_files", "mesh_units",
+__all__ = ["integrate_session", "integrate_memory", "write_depth_outputs", "read_intrinsics", "integrate_files",
+           "mesh_units",
            "NORMALS", "MASK", "OUTPUTS", "MESH_KEYS"]
 
 MASK = NORMALS_MASK

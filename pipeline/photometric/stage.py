@@ -18,9 +18,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import StageError
-from ..imageio import image_size, read_image_native, read_workers, read_mask, to_float, write_image, write_mask, write_normal_png
-from ..lightsio import read_lights_yaml
+from ..imageio import (image_size, read_image_native, read_mask, read_workers, to_float, write_image, write_mask,
+                       write_normal_png)
 from ..jit import BASE_BYTES, budget_bytes, check_budget, format_gb
+from ..lightsio import read_lights_yaml
 from ..paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS
 from ..progress import progress as progress_bar
 from ..yamlio import plain
@@ -31,8 +32,9 @@ from .near_lights import PointLights
 from .registration import align_frames, alignable, check_registration
 from .summary import normals_warnings
 
-__all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack", "solve_without", "read_workers",
-           "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "registration_record",
+__all__ = ["normals_session", "begin_normals", "record_normals", "NormalsRun", "ChannelSums", "load_object_stack",
+           "solve_without", "normals_memory", "stack_shape", "MAP_BYTES", "object_mask",
+           "light_model", "stage_params", "model_record", "frame_gains_record", "registration_record",
            "STAGE",
            "LIGHT_MODELS", "ALIGN_MODES", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS"]
 
@@ -357,14 +359,14 @@ def normals_session(session, *, method="biquadratic", force=False, show_progress
             check_budget(where, needs["in_memory"], budget,
                          "near lights at the integrated depth need the whole stack: give more with --memory, "
                          "or --near-depth off to solve tiles from disk")
+        if tiled is None:   # no tiled execution given: in memory or not at all
+            check_budget(where, needs["in_memory"], budget, "give more with --memory")
         check_budget(where, needs["tiled"], budget, "give more with --memory, or bin the frames (psrig decode --bin 2)")
         print(f"{where}: the stack needs about {format_gb(needs['in_memory'])}, over the budget of "
               f"{format_gb(budget)}: solving tiles from a memory-mapped stack", flush=True)
-        if tiled is None:
-            check_budget(where, needs["in_memory"], budget, "give more with --memory")
         record = tiled(session, run, dict(plan, execution="tiled", estimate_gb=round(needs["tiled"] / 2 ** 30, 2)),
-                             method=method, force=force, lights_model=lights_model, near_depth=near_depth,
-                             align=align, **options)
+                       method=method, force=force, lights_model=lights_model, near_depth=near_depth, align=align,
+                       **options)
         if record is not None:
             return record
         # the tiles called for a whole-image correction (the specular anchor): in memory after all
@@ -465,8 +467,8 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     colour); ``near_depth`` :func:`pipeline.photometric.near_depth.refine_near_depth`'s report,
     kept when it ran a pass; ``registration`` :func:`pipeline.photometric.registration.check_registration`'s
     finding (by frame index), kept by frame id; ``timings`` {step: wall seconds} of the run so
-    far (and ``cpu``: {step: CPU seconds}), kept with the writing's seconds added as ``write``; ``memory`` the budget and how the
-    stage ran within it, kept as it is.
+    far (and ``cpu``: {step: CPU seconds}), kept with the writing's seconds added as ``write``;
+    ``memory`` the budget and how the stage ran within it, kept as it is.
     """
     written = time.perf_counter(), time.process_time()
     outputs = _write_outputs(session, result, channels)
