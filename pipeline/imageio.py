@@ -6,6 +6,8 @@ as stored. Writing picks the pixel type from the extension unless ``bits`` says 
 every write is atomic.
 """
 
+import os
+
 import numpy as np
 import OpenImageIO as oiio
 
@@ -22,6 +24,7 @@ __all__ = [
     "read_normal_png",
     "write_normal_png",
     "encode_normals_png",
+    "read_workers",
 ]
 
 _DEFAULT_BITS = {".exr": 32, ".png": 16, ".tif": 16, ".tiff": 16, ".jpg": 8, ".jpeg": 8, ".tga": 8}
@@ -60,10 +63,22 @@ def read_image_native(path):
 
 def read_image(path):
     """Read an image as float32 (H, W, C); integer types scaled so their maximum is 1.0."""
-    pixels = read_image_native(path)
+    return to_float(read_image_native(path))
+
+
+def to_float(pixels):
+    """Pixels as :func:`read_image` returns them: float32, integer types scaled so their maximum
+    is 1.0; float32 input is returned as it is (not copied)."""
     if np.issubdtype(pixels.dtype, np.integer):
-        return pixels.astype(np.float32) / np.float32(np.iinfo(pixels.dtype).max)
+        scaled = pixels.astype(np.float32)
+        return np.divide(scaled, np.float32(np.iinfo(pixels.dtype).max), out=scaled)
     return pixels.astype(np.float32, copy=False)
+
+
+def _above_half(dtype):
+    """(max + 1,) bool: which values of an integer type :func:`read_image` scales above 0.5."""
+    values = np.arange(np.iinfo(dtype).max + 1, dtype=dtype)
+    return to_float(values) > 0.5
 
 
 def image_size(path):
@@ -141,9 +156,22 @@ def _convert(pixels, bits):
     return np.clip(np.rint(np.nan_to_num(pixels) * top), 0, top).astype(dtype)
 
 
+_ABOVE_HALF = {}
+
+
 def read_mask(path):
     """Read a mask image as bool (H, W): true where any channel is above half scale."""
-    return (read_image(path) > 0.5).any(axis=2)
+    pixels = read_image_native(path)
+    if pixels.dtype in (np.uint8, np.uint16):
+        # a table of the 256 or 65536 values, decided as read_image's floats would be, instead
+        # of a float32 copy of the image
+        table = _ABOVE_HALF.get(pixels.dtype.type)
+        if table is None:
+            table = _ABOVE_HALF.setdefault(pixels.dtype.type, _above_half(pixels.dtype))
+        above = table[pixels]
+    else:
+        above = to_float(pixels) > 0.5
+    return above.any(axis=2) if above.shape[2] > 1 else above[:, :, 0]
 
 
 def write_mask(path, mask):
@@ -185,3 +213,14 @@ def read_normal_png(path):
     mask &= norm[:, :, 0] > 0.5
     normals = np.where(mask[:, :, None], normals / np.maximum(norm, 1e-12), 0.0)
     return normals.astype(np.float32), mask
+
+
+def read_workers():
+    """Threads that read frames: the cores this process may use, at most 8 (OpenImageIO's
+    read and the EXR decompression release the GIL; beyond the cores they only add frames in
+    flight, each one frame's worth of memory)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:   # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(8, cores))

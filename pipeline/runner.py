@@ -25,7 +25,7 @@ from .decode.stage import DECODE
 from .errors import PsrigError, SessionError, StageError, describe_os_error
 from .integrate.stage import INTEGRATE
 from .lock import act_under, lifeline, watch_lifeline, worker_context
-from .photometric.stage import NORMALS
+from .photometric import NORMALS
 from .report.stage import REPORT
 from .session import STAGES, Session
 from .core.stage import Outcome

@@ -78,6 +78,7 @@ def _run_files(args, K, method, options):
             raise InputError(f"{args.mask}: size {mask.shape} differs from {args.normals} "
                              f"{normals.shape[:2]}")
     mesh = {k: options.pop(k) for k in MESH_KEYS if k in options}
+    options.pop("memory", None)   # the session's budget check; files given by hand are integrated as they are
     albedo = read_image(args.albedo) if args.albedo else None
     if albedo is not None and albedo.shape[:2] != normals.shape[:2]:
         raise InputError(f"{args.albedo}: size {albedo.shape[:2]} differs from {args.normals} {normals.shape[:2]}")

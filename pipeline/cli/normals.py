@@ -41,6 +41,10 @@ def run(args):
         return 0
     method = record["params"]["method"]
     print(f"{session.root}: normals ({method}) in {record['seconds']:.2f} s; {normals_summary(record)}")
+    budget = record.get("memory")
+    if budget:
+        print(f"{session.root}: normals: {budget['execution']}, estimated peak {budget['estimate_gb']:.2f} GB "
+              f"within a budget of {budget['budget_gb']:.2f} GB (--memory)")
     for warning in record.get("warnings", []):
         print(f"{session.root}: normals: warning: {warning}")
     return 0

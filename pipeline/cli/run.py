@@ -50,8 +50,9 @@ def register(subparsers):
     calib.add_argument("--calibration-from", metavar="OTHER_SESSION",
                        help="use another session's calibration (psrig calibrate --from)")
     NormalsOptions.add_arguments(parser.add_argument_group("normals (as psrig normals)"), first=("method",))
+    # one --memory (the normals group's) is the budget of normals and integrate alike
     IntegrateOptions.add_arguments(parser.add_argument_group("integrate (as psrig integrate)"),
-                                   rename={"method": "--integrate-method"})
+                                   rename={"method": "--integrate-method"}, skip=("memory",))
     ReportOptions.add_arguments(parser.add_argument_group("report (as psrig report)"))
     parser.add_argument("--scheduler", nargs="?", const="local", metavar="ADDRESS",
                         help="run on a Dask cluster (psrig[cluster]): the scheduler's address, "
@@ -94,6 +95,8 @@ def run(args):
                "calibrate": {k: v for k, v in _calibration(args).items() if v is not None},
                "normals": NormalsOptions.from_args(args), "integrate": IntegrateOptions.from_args(args),
                "report": ReportOptions.from_args(args)}
+    if "memory" in options["normals"]:
+        options["integrate"]["memory"] = options["normals"]["memory"]
     lines = not (args.quiet or args.json)
     run = dict(options=options, force=args.force, start=args.start, stop=args.stop, jobs=args.jobs,
                echo=(lambda line: print(line, flush=True)) if lines else None, wait=args.wait)

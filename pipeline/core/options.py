@@ -59,6 +59,9 @@ class OptionSpec:
     metavar : str, optional
     const : optional
         The flag takes no value and sets this one (``--grey`` sets channels 'grey').
+    recorded : bool
+        False for a setting of how the stage runs, not of what it makes (a memory budget): left
+        out of the stage record, so that changing it does not rerun the stage.
     default_text : str, optional
         How the help states a default that the code decides (e.g. "0.05 under a narrow cone").
     """
@@ -75,6 +78,7 @@ class OptionSpec:
     metavar: str = None
     default_text: str = None
     const: object = None
+    recorded: bool = True
 
 
 def option(default, help, **spec):
@@ -136,8 +140,10 @@ class Options:
         return {k: getattr(self, k) for k in defaults if getattr(self, k) != defaults[k]}
 
     def record(self):
-        """What the stage record keeps: the options that differ from their defaults."""
-        return self.given()
+        """What the stage record keeps: the options that differ from their defaults (but those
+        declared ``recorded=False``)."""
+        specs = self.specs()
+        return {k: v for k, v in self.given().items() if specs[k][1].recorded}
 
     @classmethod
     def help_line(cls, name):

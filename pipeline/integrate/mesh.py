@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..atomic import atomic_write_bytes, atomic_write_text
+from ..atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from ..errors import InputError
 from ..gamma import encode_gamma
 from ..imageio import write_image
@@ -310,14 +310,22 @@ def write_ply(path, vertices, normals, faces, colours=None, comments=(), quality
     atomic_write_bytes(path, header.encode("ascii") + vert.tobytes() + face.tobytes())
 
 
+#: rows formatted at a time by :func:`_lines` and :func:`_faces`: the Python floats of a
+#: whole mesh's ``tolist`` and its text held at once cost about a kilobyte per vertex
+LINES_PER_PIECE = 1 << 16
+
+
 def _lines(prefix, array, fmt):
-    """Text lines ``prefix v0 v1 ...`` of a 2-D array, formatted in one C-level pass (np.savetxt
-    formats row by row in Python, several times slower on a million vertices)."""
+    """Text of lines ``prefix v0 v1 ...`` of a 2-D array, in pieces of :data:`LINES_PER_PIECE`
+    lines, each formatted in one C-level pass (np.savetxt formats row by row in Python, several
+    times slower on a million vertices)."""
     array = np.asarray(array)
     if len(array) == 0:
-        return ""
+        return
     line = f"{prefix} " + " ".join([fmt] * array.shape[1]) + "\n"
-    return (line * len(array)) % tuple(array.ravel().tolist())
+    for start in range(0, len(array), LINES_PER_PIECE):
+        piece = array[start:start + LINES_PER_PIECE]
+        yield (line * len(piece)) % tuple(piece.ravel().tolist())
 
 
 def write_obj(path, mesh, texture=None, comments=()):
@@ -334,13 +342,13 @@ def write_obj(path, mesh, texture=None, comments=()):
     comments : sequence of str
     """
     _check_finite(path, mesh.vertices, mesh.normals)
-    text = ["# psrig normal integration\n"] + [f"# {c}\n" for c in comments]
+    text = [["# psrig normal integration\n"] + [f"# {c}\n" for c in comments]]
     vertex = mesh.vertices
     if mesh.colours is not None:
         vertex = np.hstack([vertex, mesh.colours / 255.0])
     if texture:
         mtl = path.with_suffix(".mtl")
-        text.append(f"mtllib {mtl.name}\nusemtl albedo\n")
+        text.append([f"mtllib {mtl.name}\nusemtl albedo\n"])
         atomic_write_text(mtl, f"# psrig: the albedo as a texture\nnewmtl albedo\nKa 0 0 0\nKd 1 1 1\n"
                                f"Ks 0 0 0\nillum 1\nmap_Kd {texture}\n")
     text += [_lines("v", vertex, "%.6g"), _lines("vn", mesh.normals, "%.5f")]
@@ -351,14 +359,19 @@ def write_obj(path, mesh, texture=None, comments=()):
         text += [_lines("vt", uv, "%.6f"), _faces(ref, "%d/%d/%d")]
     else:
         text.append(_faces(ref, "%d//%d"))
-    atomic_write_text(path, "".join(text))
+    # written piece by piece: the file's text is never whole in memory
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as out:
+        for pieces in text:
+            out.writelines(pieces)
 
 
 def _faces(ref, corner):
-    """``f`` lines of 1-based triangles (F, 3), one index per vertex reused for v, vt and vn."""
-    values = np.repeat(ref, corner.count("%d"), axis=1)
+    """``f`` lines of 1-based triangles (F, 3), one index per vertex reused for v, vt and vn, in
+    pieces of :data:`LINES_PER_PIECE` lines."""
     line = "f " + " ".join([corner] * 3) + "\n"
-    return (line * len(values)) % tuple(values.ravel().tolist()) if len(values) else ""
+    for start in range(0, len(ref), LINES_PER_PIECE):
+        values = np.repeat(ref[start:start + LINES_PER_PIECE], corner.count("%d"), axis=1)
+        yield (line * len(values)) % tuple(values.ravel().tolist())
 
 
 def write_depth_mesh(path, depth, K=None, normals=None, albedo=None, **options):

@@ -20,6 +20,7 @@ import yaml
 from ..atomic import atomic_write_text
 from ..errors import InputError, StageError
 from ..imageio import read_image, read_mask, write_image
+from ..jit import BASE_BYTES, budget_bytes, check_budget
 from ..paths import (ALBEDO, DEPTH, INTEGRATION, MESH, MESH_OBJ, MESH_TEXTURE, NORMALS, NORMALS_MASK, SHADED,
                      UNCERTAINTY)
 from ..settings.integrate import IntegrateOptions
@@ -27,8 +28,8 @@ from ..core.stage import Stage
 from .mesh import MAX_SLOPE_DEG, albedo_colours, build_mesh, write_obj, write_ply, write_shaded
 from .solve import check_intrinsics, integrate_normals_full
 
-__all__ = ["integrate_session", "write_depth_outputs", "read_intrinsics", "integrate_files", "mesh_units",
-           "NORMALS", "MASK", "OUTPUTS", "MESH_KEYS", "IntegrateStage", "INTEGRATE"]
+__all__ = ["integrate_session", "integrate_memory", "write_depth_outputs", "read_intrinsics", "integrate_files",
+           "mesh_units", "NORMALS", "MASK", "OUTPUTS", "MESH_KEYS", "IntegrateStage", "INTEGRATE"]
 
 MASK = NORMALS_MASK
 OUTPUTS = (DEPTH, MESH, MESH_OBJ, "depth/mesh.mtl", MESH_TEXTURE, SHADED, INTEGRATION)
@@ -173,7 +174,19 @@ def write_depth_outputs(folder, result, normals, K=None, info=None, albedo=None,
     return summary
 
 
-def integrate_session(session, *, K=None, method="smooth", force=False, invalid="drop", **options):
+#: bytes the integration holds per object pixel (the sparse system, its preconditioner, the
+#: solver's vectors, the mesh) and per image pixel (normals, albedo, depth); measured peaks are
+#: below this (docs/big-captures.md)
+OBJECT_BYTES = 800
+IMAGE_BYTES = 100
+
+
+def integrate_memory(mask):
+    """Estimated peak bytes of the integrate stage for ``mask`` (H, W) bool."""
+    return BASE_BYTES + int(mask.sum()) * OBJECT_BYTES + mask.size * IMAGE_BYTES
+
+
+def integrate_session(session, *, K=None, method="smooth", force=False, invalid="drop", memory=None, **options):
     """Run the integrate stage of a session unless it is up to date.
 
     Parameters
@@ -193,6 +206,10 @@ def integrate_session(session, *, K=None, method="smooth", force=False, invalid=
     options
         Passed to the method, but for :data:`MESH_KEYS`, which go to the mesh
         (:func:`write_depth_outputs`).
+    memory : int or str, optional
+        The memory budget (:func:`pipeline.jit.budget_bytes`; default a share of the
+        available memory): a session whose estimated peak (:func:`integrate_memory`) exceeds
+        it is refused before the solve, and the record keeps ``memory``.
 
     Returns
     -------
@@ -213,6 +230,10 @@ def integrate_session(session, *, K=None, method="smooth", force=False, invalid=
     if not force and session.stage_is_current("integrate", params, inputs):
         return None
     start = time.perf_counter()
+    budget = budget_bytes(memory)
+    needs = integrate_memory(read_mask(session.path(MASK)))
+    check_budget(f"{session.root}: integrate", needs, budget,
+                 "give more with --memory, or integrate a binned session (psrig decode --bin 2)")
     normals, mask = _read_inputs(session)
     result = integrate_files(normals, mask, K, method, str(session.path(NORMALS)), **options)
     result.warnings = [_why_no_normal(session, w) for w in result.warnings]
@@ -228,7 +249,8 @@ def integrate_session(session, *, K=None, method="smooth", force=False, invalid=
     session.record_stage("integrate", params, inputs, list(OUTPUTS if albedo is not None else _UNCOLOURED),
                          seconds=time.perf_counter() - start, components=result.n_components,
                          offsets_between_components="unknown" if result.n_components > 1 else "n/a",
-                         iterations=result.iterations, mesh=summary["mesh"], warnings=summary["warnings"])
+                         iterations=result.iterations, mesh=summary["mesh"], warnings=summary["warnings"],
+                         memory={"budget_gb": round(budget / 2 ** 30, 2), "estimate_gb": round(needs / 2 ** 30, 2)})
     return result
 
 

@@ -26,6 +26,8 @@ Where things live:
 The methods and the measurements behind the defaults: docs/photometric-stereo.md.
 """
 
+import functools
+
 from . import biquadratic  # noqa: F401  (registers the default method)
 from .biquadratic import Biquadratic, biquadratic_method
 from .estimate import PhotometricResult, SolvePlan, check_lights, estimate_normals, plan_solve
@@ -33,9 +35,21 @@ from .methods import METHODS, STATUS, STATUS_NAMES, get_method, register_model_m
 from .near_lights import PointLights, observations_at
 from .registration import check_registration
 from .selection import light_spread_deg, resolve_selection
-from .stage import normals_session
+from . import stage as _stage
+from .stage import NormalsStage
 from .summary import normals_summary, normals_warnings
-from .tiles import SCRATCH, WHOLE_IMAGE, TilePlan, assemble_normals, plan_normals, run_tile
+from .tiles import SCRATCH, WHOLE_IMAGE, TilePlan, assemble_normals, plan_normals, run_tile, solve_tiled
+
+
+@functools.wraps(_stage.normals_session)
+def normals_session(session, **options):
+    # the stage with its tiled execution for stacks over the memory budget (the tiles module
+    # imports the stage's, so the stage cannot import it)
+    return _stage.normals_session(session, tiled=solve_tiled, **options)
+
+
+#: the normals stage the runner and the scheduler run: the serial stage with its tiled execution
+NORMALS = _stage.NormalsStage(tiled=solve_tiled)
 
 register_model_methods()
 
@@ -43,4 +57,4 @@ __all__ = ["share_text", "estimate_normals", "PhotometricResult", "SolvePlan", "
            "get_method", "STATUS", "STATUS_NAMES", "Biquadratic", "biquadratic_method", "PointLights",
            "observations_at", "light_spread_deg", "resolve_selection", "normals_session", "normals_summary",
            "normals_warnings", "check_registration", "TilePlan",
-           "plan_normals", "run_tile", "assemble_normals", "WHOLE_IMAGE", "SCRATCH"]
+           "plan_normals", "run_tile", "assemble_normals", "WHOLE_IMAGE", "SCRATCH", "NORMALS", "NormalsStage"]

@@ -12,14 +12,18 @@ are the same three steps: :func:`begin_normals` (inputs, staleness, lights), a s
 :func:`record_normals` (outputs and the stage record).
 """
 
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import StageError
-from ..imageio import read_image, read_mask, write_image, write_mask, write_normal_png
 from ..atomic import atomic_write_text
+from ..imageio import (image_size, read_image_native, read_mask, read_workers, to_float, write_image, write_mask,
+                       write_normal_png)
+from ..jit import BASE_BYTES, budget_bytes, check_budget, format_gb
 from ..lightsio import read_exclude, read_lights_yaml
 from ..paths import EXCLUDE, LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, PREDICTION, PREDICTION_IMAGES, UNCERTAINTY
 from ..progress import progress as progress_bar
@@ -33,11 +37,12 @@ from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
 from .prediction import held_out_prediction
 from .registration import align_frames, alignable, check_registration
-from .summary import normals_warnings
+from .summary import normals_summary, normals_warnings
 
-__all__ = ["NormalsStage", "NORMALS", "normals_session", "registration_verdict", "begin_normals", "record_normals",
-           "predict_held_out", "NormalsRun", "ChannelSums", "load_object_stack",
-           "object_mask", "light_model", "stage_params", "model_record", "frame_gains_record", "registration_record",
+__all__ = ["NormalsStage", "normals_session", "registration_verdict", "begin_normals", "record_normals",
+           "predict_held_out", "NormalsRun", "ChannelSums", "load_object_stack", "solve_without", "normals_memory",
+           "stack_shape", "MAP_BYTES", "object_mask", "light_model", "stage_params", "model_record",
+           "frame_gains_record", "registration_record",
            "STAGE",
            "LIGHT_MODELS", "ALIGN_MODES", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS"]
 
@@ -96,6 +101,7 @@ class NormalsRun:
     mask_rel: str = None
     started: float = field(default_factory=time.time)
     align: str = "auto"
+    memory: object = None
     by_hand: dict = field(default_factory=dict)
     mask_info: dict = None
 
@@ -200,7 +206,7 @@ def begin_normals(session, *, force=False, **options):
     lights, used, by_hand = _read_stage_lights(session, frames)
     return NormalsRun(chosen.method, chosen.solver_options(), params, inputs, used, lights,
                       light_model(lights, chosen.lights_model), chosen.near_depth, mask_rel, started, chosen.align,
-                      by_hand)
+                      chosen.memory, by_hand)
 
 
 class ChannelSums:
@@ -222,25 +228,79 @@ class ChannelSums:
         self.sums = scaled if self.sums is None else np.add(self.sums, scaled, out=self.sums)
 
 
-def load_object_stack(session, frames, lights, channels=None):
-    """Grey linear stack (K, H, W) with intensities divided out, and valid (K, H, W) bool;
-    ``channels`` (a :class:`ChannelSums`) gathers the colour sums on the way."""
-    images, valid = [], []
-    for frame in frames:
-        linear = read_image(session.linear_path(frame))
-        gain = lights.intensities[frame["light"]]
-        gain = gain if gain.size == linear.shape[2] else np.full(linear.shape[2], gain.mean())
-        if (gain <= 0).any():
-            raise StageError(f"{session.path(LIGHTS)}: light {frame['light']} has a non-positive intensity")
-        scaled = linear / gain.astype(np.float32)
-        images.append(scaled.mean(axis=2))
-        valid.append(~read_mask(session.saturation_path(frame)))
-        if channels is not None:
-            channels.add(scaled, ~valid[-1])   # after the grey mean: it zeroes the saturated pixels
-        if images[-1].shape != images[0].shape:
-            raise StageError(f"{session.linear_path(frame)}: size {images[-1].shape} differs from "
-                             f"{session.linear_path(frames[0])}'s {images[0].shape}")
-    return np.stack(images), np.stack(valid)
+def load_object_stack(session, frames, lights, channels=None, out=None, workers=None):
+    """Grey linear stack (K, H, W) float32 with intensities divided out, and valid (K, H, W) bool;
+    ``channels`` (a :class:`ChannelSums`) gathers the colour sums on the way.
+
+    The frames are read by ``workers`` threads (default :func:`read_workers`), each straight into
+    its slice of the stack: a frame's only full-size temporary is the file's pixels (H, W, C),
+    divided by the intensities in place and averaged over its channels into the stack. The
+    channel sums are added in frame order, so every output is the same to the bit whatever the
+    thread count.
+
+    Parameters
+    ----------
+    out : (ndarray, ndarray), optional
+        The stack (K, H, W) float32 and valid (K, H, W) bool to fill (e.g. memory-mapped
+        files); default new arrays.
+    """
+    first = session.linear_path(frames[0])
+    height, width, _ = image_size(first)
+    shape = (len(frames), height, width)
+    if out is None:
+        images, valid = np.empty(shape, np.float32), np.empty(shape, bool)
+    else:
+        images, valid = out
+        if images.shape != shape or valid.shape != shape:
+            raise StageError(f"normals: the stack to fill is {images.shape}, the frames {shape}")
+    turn = threading.Condition()
+    state = {"next": 0, "failed": False}
+
+    def load(index):
+        frame = frames[index]
+        path = session.linear_path(frame)
+        scaled = None
+        try:
+            if state["failed"]:
+                return
+            pixels = read_image_native(path)
+            if pixels.shape[:2] != (height, width):
+                raise StageError(f"{path}: size {pixels.shape[:2]} differs from {first}'s {(height, width)}")
+            gain = lights.intensities[frame["light"]]
+            gain = gain if gain.size == pixels.shape[2] else np.full(pixels.shape[2], gain.mean())
+            if (gain <= 0).any():
+                raise StageError(f"{session.path(LIGHTS)}: light {frame['light']} has a non-positive intensity")
+            # the same float32 arithmetic as read_image then ``linear / gain``, in the file's buffer
+            scaled = to_float(pixels)
+            np.divide(scaled, gain.astype(np.float32), out=scaled)
+            np.mean(scaled, axis=2, out=images[index])
+            np.logical_not(read_mask(session.saturation_path(frame)), out=valid[index])
+        except BaseException:
+            state["failed"] = True
+            raise
+        finally:
+            # float sums depend on their order: frame k's colours are added after frame k - 1's
+            with turn:
+                turn.wait_for(lambda: state["next"] == index or state["failed"])
+                if channels is not None and not state["failed"]:
+                    channels.add(scaled, ~valid[index])
+                state["next"] += 1
+                turn.notify_all()
+
+    count = min(workers or read_workers(), len(frames))
+    if count == 1:
+        for index in range(len(frames)):
+            load(index)
+    else:
+        pool = ThreadPoolExecutor(count, thread_name_prefix="psrig-read")
+        try:
+            # submitted in frame order and taken in that order, so a task waiting for its turn
+            # never waits on one that has not started
+            for task in [pool.submit(load, index) for index in range(len(frames))]:
+                task.result()
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+    return images, valid
 
 
 #: without a mask, the object is where the brightest observation exceeds this share of the
@@ -304,7 +364,29 @@ def mask_info(mask, given=None):
     return info
 
 
-def normals_session(session, *, force=False, show_progress=True, **options):
+#: bytes per pixel of the solve's maps and the writing of normals/ (normals, parameters, albedo,
+#: residual, status, counts and their file buffers), beyond the stack
+MAP_BYTES = 200
+
+
+def stack_shape(session, frames):
+    """(K, H, W, C) of the object frames, from the first file's header."""
+    height, width, channels = image_size(session.linear_path(frames[0]))
+    return len(frames), height, width, channels
+
+
+def normals_memory(shape, workers=1):
+    """Estimated peak bytes of the normals stage on a stack of ``shape`` (K, H, W, C):
+    ``in_memory`` (the stack and its saturation flags, K x H x W x 5 bytes, the frames in flight,
+    the colour sums, the maps) and ``tiled`` (the same without the stack, which is memory-mapped
+    and read a tile of rows at a time)."""
+    k, height, width, colours = shape
+    pixels = height * width
+    maps = BASE_BYTES + pixels * (MAP_BYTES + 4 * colours * (1 + workers))
+    return {"in_memory": maps + 5 * k * pixels, "tiled": maps}
+
+
+def normals_session(session, *, force=False, show_progress=True, tiled=None, **options):
     """Run the normals stage on a session; returns the stage record (None when up to date).
 
     ``options`` are :class:`pipeline.settings.NormalsOptions` (an unknown name is an InputError
@@ -322,14 +404,58 @@ def normals_session(session, *, force=False, show_progress=True, **options):
     Last, ``holdout_folds`` folds of the lights are held back in turn and the biquadratic and
     Lambertian fits scored on predicting them (:mod:`pipeline.photometric.prediction`;
     ``normals/prediction.yaml``, ``normals/prediction.exr``); 0 skips it.
+
+    The option ``memory`` is the budget (:func:`pipeline.jit.budget_bytes`: None for the default share
+    of the available memory, bytes or text such as '8G'). When the stack does not fit it, the
+    stage solves tiles from a memory-mapped stack (:mod:`pipeline.photometric.tiles`: the same
+    normals; frames found moved are named but not aligned) with ``tiled``
+    (:func:`pipeline.photometric.tiles.solve_tiled`, which :func:`pipeline.photometric.normals_session`
+    passes; this module does not import the tiles); when even that does not fit, or the
+    run must be whole (near lights at an integrated depth), it refuses with StageError before
+    reading a frame. The record's ``memory`` says which, with the estimate and the budget.
     """
     run = begin_normals(session, force=force, **options)
     if run is None:
         return None
     method, near_depth = run.method, run.near_depth
+    budget = budget_bytes(run.memory)
+    workers = read_workers()
+    needs = normals_memory(stack_shape(session, run.frames), workers)
+    where = f"{session.root}: normals"
+    plan = {"budget_gb": round(budget / 2 ** 30, 2), "estimate_gb": round(needs["in_memory"] / 2 ** 30, 2)}
+    if needs["in_memory"] > budget:
+        if run.model == "near" and run.near_depth:
+            check_budget(where, needs["in_memory"], budget,
+                         "near lights at the integrated depth need the whole stack: give more with --memory, "
+                         "or --near-depth off to solve tiles from disk")
+        if tiled is None:   # no tiled execution given: in memory or not at all
+            check_budget(where, needs["in_memory"], budget, "give more with --memory")
+        check_budget(where, needs["tiled"], budget, "give more with --memory, or bin the frames (psrig decode --bin 2)")
+        print(f"{where}: the stack needs about {format_gb(needs['in_memory'])}, over the budget of "
+              f"{format_gb(budget)}: solving tiles from a memory-mapped stack", flush=True)
+        record = tiled(session, run, dict(plan, execution="tiled", estimate_gb=round(needs["tiled"] / 2 ** 30, 2)),
+                       **{k: v for k, v in options.items() if k != "memory"})
+        if record is not None:
+            return record
+        # the tiles called for a whole-image correction (the specular anchor): in memory after all
+        check_budget(where, needs["in_memory"], budget, "the specular-peak correction needs the whole stack: "
+                     "give more with --memory, or --specular-anchor off")
+    plan["execution"] = "in memory"
+    # the record's ``timings`` say where the stage's wall time went (read, solve, check, write)
+    # and ``cpu`` the process's CPU seconds (every thread) of each, steadier on a shared machine
+    clock = [time.perf_counter(), time.process_time()]
+    timings = {"cpu": {}}
+
+    def lap(name):
+        now = time.perf_counter(), time.process_time()
+        timings[name] = round(now[0] - clock[0], 3)
+        timings["cpu"][name] = round(now[1] - clock[1], 3)
+        clock[:] = now
+
     channels = ChannelSums()
     images, valid = load_object_stack(session, run.frames, run.lights, channels)
     mask = object_mask(session, run, images)
+    lap("read")
     passes = PASSES if run.model == "near" and near_depth else 0
     solved_with = {}
     with progress_bar(total=int(mask.sum()) * (1 + passes), desc="normals", unit="px",
@@ -348,12 +474,17 @@ def normals_session(session, *, force=False, show_progress=True, **options):
             result, depth = refine_near_depth(solve, lights, mask, passes=passes)
         else:
             result, depth = solve(lights, mask), None
+    lap("solve")
     # after the solve: every frame against the model's rendering of it (the object or camera moved?)
     result, registration, (images, valid) = _register(images, valid, lights, mask, result, method, run.options,
                                                       run.align)
+    lap("registration")
     prediction = predict_held_out(run, images, valid, solved_with.get(id(result), lights), result)
+    lap("prediction")
+    # the stack is done with: the files' buffers are not to come on top of it
+    del images, valid, lights
     return record_normals(session, run, result, channels, near_depth=depth, registration=registration,
-                          prediction=prediction)
+                          prediction=prediction, timings=timings, memory=plan)
 
 
 def registration_verdict(images, valid, lights, result, align, resolve=None):
@@ -400,7 +531,8 @@ def _register(images, valid, lights, mask, result, method, options, align):
         return estimate_normals(stack, lights[chosen], mask, method=method, valid=usable, **options)
 
     found = registration_verdict(images, valid, lights, result, align,
-                                 resolve=lambda keep: solve(images[keep], valid[keep], keep))
+                                 resolve=lambda keep: solve_without(images, valid, keep,
+                                                                    lambda i, v: solve(i, v, keep)))
     if found.pop("align", False):
         images, valid = align_frames(images, valid, found["moved"])
         result = solve(images, valid)
@@ -408,7 +540,38 @@ def _register(images, valid, lights, mask, result, method, options, align):
     return result, found, (images, valid)
 
 
-def record_normals(session, run, result, channels, near_depth=None, registration=None, prediction=None):
+def solve_without(images, valid, keep, solve):
+    """``solve(images[keep], valid[keep])`` without a copy of the stack: the kept frames are moved
+    to the front of ``images`` and ``valid`` (K, H, W) in place, in order, the others set aside,
+    and every frame put back afterwards (also when ``solve`` raises).
+
+    Parameters
+    ----------
+    images, valid : ndarray (K, H, W)
+        float32 and bool, changed during the call and restored.
+    keep : ndarray (K,) bool
+    solve : callable
+        ``solve(images (N, H, W), valid (N, H, W))`` on the N kept frames, contiguous views.
+    """
+    keep = np.asarray(keep, bool)
+    kept, dropped = np.flatnonzero(keep), np.flatnonzero(~keep)
+    aside = images[dropped], valid[dropped]   # copies: only the frames left out
+    try:
+        for index, frame in enumerate(kept):
+            if index != frame:
+                images[index], valid[index] = images[frame], valid[frame]
+        return solve(images[:len(kept)], valid[:len(kept)])
+    finally:
+        # backwards: frame kept[i] >= i, so no slot is written before its frame has moved
+        for index in range(len(kept) - 1, -1, -1):
+            frame = kept[index]
+            if index != frame:
+                images[frame], valid[frame] = images[index], valid[index]
+        images[dropped], valid[dropped] = aside
+
+
+def record_normals(session, run, result, channels, near_depth=None, registration=None, prediction=None,
+                   timings=None, memory=None):
     """Write ``normals/`` from a :class:`PhotometricResult` and record the stage; returns the record.
 
     ``channels`` is the :class:`ChannelSums` gathered while the frames were read (the albedo's
@@ -417,8 +580,11 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     finding (by frame index), kept by frame id; ``prediction``
     :func:`pipeline.photometric.prediction.held_out_prediction`'s finding (by frame index),
     written to ``normals/prediction.yaml`` (and its worst light's images to
-    ``normals/prediction.exr``) and summed up in the record.
+    ``normals/prediction.exr``) and summed up in the record; ``timings`` {step: wall seconds}
+    of the run so far (and ``cpu``: {step: CPU seconds}), kept with the writing's seconds added
+    as ``write``; ``memory`` the budget and how the stage ran within it, kept as it is.
     """
+    written = time.perf_counter(), time.process_time()
     outputs = _write_outputs(session, result, channels)
     outputs += _write_prediction(session, prediction, run.frames)
     counts = {name: int(np.sum(result.status[result.mask] == code)) for name, code in STATUS.items() if code}
@@ -434,6 +600,12 @@ def record_normals(session, run, result, channels, near_depth=None, registration
     extra["uncertainty"] = uncertainty_record(result.options.get("uncertainty"))
     if prediction is not None:
         extra["prediction"] = prediction_record(prediction, run.frames)
+    if memory is not None:
+        extra["memory"] = memory
+    if timings is not None:
+        extra["timings"] = {**timings, "write": round(time.perf_counter() - written[0], 3)}
+        if "cpu" in timings:
+            extra["timings"]["cpu"] = {**timings["cpu"], "write": round(time.process_time() - written[1], 3)}
     transfer = list(((session.stage("decode") or {}).get("transfer") or {}))
     extra["warnings"] = normals_warnings(counts, len(run.frames), result.options, extra.get("frame_gains"), transfer,
                                          registration=extra.get("registration"))
@@ -594,19 +766,23 @@ def model_record(shared_shape, shape_check, anchor):
 
 
 class NormalsStage(Stage):
-    """The ``normals`` stage (:class:`pipeline.core.stage.Stage`): :func:`normals_session`."""
+    """The ``normals`` stage (:class:`pipeline.core.stage.Stage`): :func:`normals_session`, with
+    ``tiled`` its execution in tiles for a stack over the memory budget
+    (:func:`pipeline.photometric.tiles.solve_tiled`; the package puts the two together, as the
+    tiles import this module)."""
 
     name = STAGE
     Options = NormalsOptions
     reads = ("linear/<frame>.exr and <frame>_sat.png of the object frames", LIGHTS,
              "the object mask the manifest names", "session.yaml: each object frame's id and light")
 
+    def __init__(self, tiled=None):
+        self.tiled = tiled
+
     def work(self, session, options, *, force, jobs):
         if not session.path(LIGHTS).is_file():
             raise StageError(f"{session.path(LIGHTS)}: missing; the calibrate stage makes it")
-        from .summary import normals_summary
-
-        record = normals_session(session, force=force, **options)   # its warnings are in its record
+        record = normals_session(session, force=force, tiled=self.tiled, **options)   # warnings: in its record
         return record is not None, normals_summary(record) if record is not None else ""
 
     def merge(self, recorded, given):
@@ -618,6 +794,3 @@ class NormalsStage(Stage):
             | set(EstimateOptions.specs())
         return {**{k: v for k, v in recorded.items() if k in takes}, **given}
 
-
-#: the stage object the runner and the scheduler run
-NORMALS = NormalsStage()

@@ -26,6 +26,7 @@ serial stage's even where the solver's last bits depend on the chunk it is given
 """
 
 import shutil
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,7 +45,7 @@ from .stage import (STAGE, ChannelSums, NormalsRun, begin_normals, load_object_s
                     record_normals, registration_verdict)
 
 __all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
-           "tile_context", "frame_check", "SCRATCH", "WHOLE_IMAGE"]
+           "tile_context", "frame_check", "solve_tiled", "SCRATCH", "WHOLE_IMAGE"]
 
 SCRATCH = TILES_SCRATCH
 #: the scratch file of the frames' colour sums (:class:`pipeline.photometric.stage.ChannelSums`),
@@ -57,6 +58,11 @@ CHANNELS = "channels.npy"
 #: answers it before any tile for near lights placed at an integrated depth, for the same reason,
 #: and :func:`assemble_normals` when run again after its scratch was removed without a record.
 WHOLE_IMAGE = "whole-image"
+
+
+#: object pixels per tile when the serial stage solves tiles (:func:`solve_tiled`): 2 ** 18
+#: pixels x 96 lights read 100 MB of the stack at a time
+SERIAL_TILE_PIXELS = 1 << 18
 
 
 @dataclass
@@ -138,16 +144,17 @@ def write_stack(folder, frames, load, name=str):
 
 
 
-def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=CHUNK_SIZE):
+def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=CHUNK_SIZE, run=None):
     """Prepare the tiled normals stage; returns a :class:`TilePlan`, None when up to date, or
     :data:`WHOLE_IMAGE` when the stage must run whole (near lights placed at the integrated
     depth of a first solve, :mod:`pipeline.photometric.near_depth`).
 
     ``options`` are the normals stage options (``method``, ``t_low``, ...; None = default);
-    ``chunk`` the pixels per solver call.
+    ``chunk`` the pixels per solver call; ``run`` a :class:`NormalsRun` already begun (the serial
+    stage's, when it chose tiles), else the stage is begun here.
     """
     options = {k: v for k, v in options.items() if v is not None}
-    run = begin_normals(session, force=force, **options)
+    run = run or begin_normals(session, force=force, **options)
     if run is None:
         return None
     folder = session.path(SCRATCH)
@@ -262,13 +269,14 @@ def _finite(gathered, plan, r0, r1):
     return gathered
 
 
-def assemble_normals(plan, tile_paths=None):
+def assemble_normals(plan, tile_paths=None, **record):
     """Scatter the tiles into full maps, write ``normals/``, record the stage; returns the record.
 
     Returns :data:`WHOLE_IMAGE` instead (and writes nothing) when the tiles' specular-peak
     mismatches call for a correction of the lights. Safe to call again (Dask reruns the tail
     of a worker that died): it returns the record an earlier call made, or WHOLE_IMAGE when the
-    scratch is gone without one.
+    scratch is gone without one. ``record`` goes to
+    :func:`pipeline.photometric.stage.record_normals` (``timings``, ``memory``).
     """
     session = Session.open(plan.root)
     if not plan.scratch("mask.npy").is_file():  # an earlier attempt of the tail got this far
@@ -308,6 +316,30 @@ def assemble_normals(plan, tile_paths=None):
         return WHOLE_IMAGE
     prediction = predict_held_out(plan.run, np.load(plan.scratch("stack.npy"), mmap_mode="r"),
                                   np.load(plan.scratch("valid.npy"), mmap_mode="r"), plan.solve.solver_lights, result)
-    record = record_normals(session, plan.run, result, channels, registration=found, prediction=prediction)
+    record = record_normals(session, plan.run, result, channels, registration=found, prediction=prediction, **record)
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record
+
+
+def solve_tiled(session, run, memory, **options):
+    """The serial normals stage when its stack exceeds the memory budget: the stack written to a
+    memory-mapped scratch file, the tiles solved one after another in this process, assembled
+    and recorded as the Dask path does (the same normals as a solve in memory). ``run`` is the
+    stage's :class:`NormalsRun`, ``memory`` the record's ``memory`` entry, ``options`` the stage's.
+
+    Returns the stage record, or None when the stage must run on the whole image after all (the
+    specular-peak correction, :data:`WHOLE_IMAGE`); the scratch is removed either way.
+    """
+    started = time.perf_counter()
+    plan = plan_normals(session, options, force=True, run=run, tile_pixels=SERIAL_TILE_PIXELS)
+    if plan is None or plan == WHOLE_IMAGE:
+        return None
+    try:
+        planned = time.perf_counter()
+        for tile in plan.tiles:
+            run_tile(plan, tile)
+        timings = {"read": round(planned - started, 3), "solve": round(time.perf_counter() - planned, 3)}
+        record = assemble_normals(plan, timings=timings, memory=memory)
+    finally:
+        shutil.rmtree(plan.scratch(), ignore_errors=True)
+    return None if record == WHOLE_IMAGE else record

@@ -9,8 +9,11 @@ import html
 
 __all__ = ["record_rows", "stage_warnings", "flatten", "format_value", "STANDARD_KEYS", "settings_used"]
 
-#: record keys shown elsewhere (the stages table) or not meant for reading
-STANDARD_KEYS = ("params", "version", "status", "finished", "seconds", "inputs", "outputs", "warnings")
+#: record keys shown elsewhere (the stages table) or not meant for reading; ``timings`` (where a
+#: stage's seconds went, for benchmarks) are wall-clock traces like ``seconds``, and ``memory``
+#: (the budget, a share of the memory free at the time) a trace of the machine's state
+STANDARD_KEYS = ("params", "version", "status", "finished", "seconds", "timings", "memory", "inputs", "outputs",
+                 "warnings")
 _MAX_ITEMS = 12
 
 

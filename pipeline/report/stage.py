@@ -15,13 +15,14 @@ current while the files it shows and the other stages' records are unchanged.
 """
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from ..atomic import atomic_write_text
 from ..errors import StageError
 from ..evaluate import ERROR_TOP_DEG
-from ..imageio import read_image, write_image
+from ..imageio import read_image, read_workers, write_image
 from ..paths import (ALBEDO, DEPTH, LIGHTS, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, PREDICTION,
                      PREDICTION_IMAGES, REPORT, RESIDUAL, SHADED, STATUS_MAP, UNCERTAINTY)
 from ..session import STAGES, now_iso
@@ -71,14 +72,20 @@ def _thumbnails(session, write, peak=None):
     ``peak`` (a dict), when given, gets under 'image' the per-pixel brightest of the object
     frames shrunk to :data:`MASK_SIDE` (what the mask figure draws its outline on)."""
     groups = {}
-    for frame in session.stage_frames():  # an exposure bracket: its merged frame
-        path = session.linear_path(frame)
-        if path.is_file():
-            image = read_image(path)
-            if peak is not None and frame["kind"] == "object":
-                big = shrink(image, MASK_SIDE)
+    frames = [f for f in session.stage_frames() if session.linear_path(f).is_file()]  # a bracket: its merge
+
+    def shrunk(frame):
+        image = read_image(session.linear_path(frame))
+        big = shrink(image, MASK_SIDE) if peak is not None and frame["kind"] == "object" else None
+        return shrink(image, THUMB_SIDE), big
+
+    # frames read and shrunk by threads (OpenImageIO's read releases the GIL), one full frame
+    # per thread in memory; map keeps the frames' order
+    with ThreadPoolExecutor(read_workers(), thread_name_prefix="psrig-thumbs") as pool:
+        for frame, (small, big) in zip(frames, pool.map(shrunk, frames)):
+            if big is not None:
                 peak["image"] = big if "image" not in peak else np.maximum(peak["image"], big)
-            groups.setdefault(frame["kind"], []).append((frame, shrink(image, THUMB_SIDE)))
+            groups.setdefault(frame["kind"], []).append((frame, small))
     out = []
     whites = {kind: robust_max(np.concatenate([t.ravel() for _, t in items])) for kind, items in groups.items()}
     lit = next((k for k in ("object", "sphere", "target") if k in whites), None)

@@ -33,3 +33,6 @@ class IntegrateOptions(Options):
     max_slope_deg: float = option(None, "no face across a depth step steeper than this (and than the normals say)",
                                   kind=float, above=0.0, high=90.0, flag="--max-slope", metavar="DEG",
                                   default_text=f"{MAX_SLOPE_DEG:g}")
+    memory: str = option(None, "memory budget: bytes, 8G, 1500M or a share of the available memory such as 60%; a "
+                               "session estimated to need more is refused before the solve", kind=str,
+                         metavar="SIZE", recorded=False, default_text="80% of the available memory")

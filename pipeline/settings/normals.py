@@ -151,11 +151,16 @@ class NormalsOptions(BiquadraticOptions, EstimateOptions):
                                 "solves again where the object's shading pins position, off only says",
                         choices=("auto", "off"), flag="--align-frames")
 
-    STAGE_FIELDS = ("method", "lights_model", "near_depth", "holdout_folds", "align")
+    memory: str = option(None, "memory budget: bytes, 8G, 1500M or a share of the available memory such as 60%; a "
+                               "stack over it is solved in tiles from a memory-mapped file, a run that cannot fit "
+                               "is refused before it starts", kind=str, metavar="SIZE", recorded=False,
+                         default_text="80% of the available memory")
+
+    STAGE_FIELDS = ("method", "lights_model", "near_depth", "holdout_folds", "align", "memory")
 
     def record(self):
         """The stage record's parameters: the method always, the rest when not at their default."""
-        return {"method": self.method, **{k: v for k, v in sorted(self.given().items()) if k != "method"}}
+        return {"method": self.method, **{k: v for k, v in sorted(super().record().items()) if k != "method"}}
 
     def solver_options(self):
         """The options given to the method (not the stage's own), those not at their default."""

@@ -158,3 +158,37 @@ def test_depth_exr_is_in_the_unit_given_like_the_meshes(tmp_path):
     np.testing.assert_allclose(scaled[finite], 0.25 * pixels[finite], rtol=1e-5, atol=1e-6)
     info = yaml.safe_load(session.path("depth/integration.yaml").read_text())
     assert info["depth_unit"] == "mm" and "in mm" in info["depth"]
+
+
+def whole_obj_text(mesh, texture=None):
+    """The OBJ as write_obj formatted it whole, before it wrote in pieces (the reference)."""
+    def lines(prefix, array, fmt):
+        line = f"{prefix} " + " ".join([fmt] * array.shape[1]) + "\n"
+        return (line * len(array)) % tuple(np.asarray(array).ravel().tolist())
+
+    def faces(ref, corner):
+        values = np.repeat(ref, corner.count("%d"), axis=1)
+        return ("f " + " ".join([corner] * 3) + "\n") * len(values) % tuple(values.ravel().tolist())
+
+    vertex = np.hstack([mesh.vertices, mesh.colours / 255.0]) if mesh.colours is not None else mesh.vertices
+    text = ["# psrig normal integration\n"] + (["mtllib m.mtl\nusemtl albedo\n"] if texture else [])
+    text += [lines("v", vertex, "%.6g"), lines("vn", mesh.normals, "%.5f")]
+    if texture:
+        h, w = mesh.shape
+        uv = np.stack([(mesh.pixels[:, 1] + 0.5) / w, 1 - (mesh.pixels[:, 0] + 0.5) / h], axis=1)
+        text += [lines("vt", uv, "%.6f"), faces(mesh.faces + 1, "%d/%d/%d")]
+    else:
+        text.append(faces(mesh.faces + 1, "%d//%d"))
+    return "".join(text)
+
+
+@pytest.mark.parametrize("texture", [None, "albedo.png"])
+def test_obj_written_in_pieces_is_the_whole_text(tmp_path, monkeypatch, texture):
+    from pipeline.integrate import mesh as mesh_module
+
+    depth, normals, _ = hemisphere(12)
+    mesh = build_mesh(depth, None, normals)
+    monkeypatch.setattr(mesh_module, "LINES_PER_PIECE", 7)   # pieces end mid-array, and a short last one
+    assert len(mesh.vertices) % 7 and len(mesh.faces) > 7
+    write_obj(tmp_path / "m.obj", mesh, texture)
+    assert (tmp_path / "m.obj").read_text(encoding="utf-8") == whole_obj_text(mesh, texture)
