@@ -45,7 +45,11 @@ def build_parser():
 
 def main(argv=None):
     """Entry point of the ``psrig`` console script. Returns the process exit code."""
-    parser = build_parser()
+    try:
+        parser = build_parser()   # imports every command's module: a Ctrl-C may land here
+    except KeyboardInterrupt:
+        print("psrig: interrupted", file=sys.stderr)
+        return 130
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

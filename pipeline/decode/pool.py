@@ -120,6 +120,9 @@ def _init_worker(lifeline):
     # It works under its parent's session lock: it must not outlive the parent (a SIGKILLed
     # parent would otherwise leave it, the fork server and the resource tracker running).
     watch_lifeline(lifeline)
+    # A Ctrl-C reaches the terminal's whole process group: the parent stops the decode (it
+    # starts no further frame and records those done); a worker, idle or not, prints nothing.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _io_thread():
