@@ -45,12 +45,12 @@ def build_parser():
 
 def main(argv=None):
     """Entry point of the ``psrig`` console script. Returns the process exit code."""
-    try:
-        parser = build_parser()   # imports every command's module: a Ctrl-C may land here
+    try:   # imports every command's module (and what its options read): a Ctrl-C may land here
+        parser = build_parser()
+        args = parser.parse_args(argv)
     except KeyboardInterrupt:
         print("psrig: interrupted", file=sys.stderr)
         return 130
-    args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -56,15 +56,17 @@ def test_an_idle_decode_worker_ignores_ctrl_c(capfd):
 
 
 def test_ctrl_c_while_psrig_starts_is_one_line(tmp_path):
-    """Ctrl-C while Python imports psrig and its commands (a fraction of a second)."""
+    """Ctrl-C while Python imports psrig and its commands, or its workers' fork server starts."""
     import subprocess
     import sys
     import time
 
     from tests.pipeline.decode.test_interrupt import REPO
 
-    for delay in (0.05, 0.1, 0.15, 0.2, 0.3, 0.4):
-        proc = subprocess.Popen([sys.executable, "-m", "pipeline", "run", str(tmp_path / "none")], cwd=REPO,
+    root = raw_session(tmp_path / "s", frames=4, shape=(64, 64))
+    for delay in (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0):
+        # up to when the workers' fork server imports its modules
+        proc = subprocess.Popen([sys.executable, "-m", "pipeline", "decode", str(root), "--force"], cwd=REPO,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
         time.sleep(delay)
         os.killpg(proc.pid, signal.SIGINT)
