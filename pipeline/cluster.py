@@ -27,6 +27,7 @@ import signal
 import threading
 import time
 import uuid
+import warnings
 from pathlib import Path
 
 from .errors import InputError, PsrigError, StageError
@@ -65,7 +66,10 @@ def open_client(scheduler=None, jobs=2):
         with client:
             yield client
         return
-    with _workers_ignore_ctrl_c():
+    with _workers_ignore_ctrl_c(), warnings.catch_warnings():
+        # the scheduler's HTTP server takes another port when 8787 is taken (another user's
+        # cluster on this machine) and says so: nothing for psrig's user to do
+        warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
         # its workers' own logs are silenced: psrig reports every task's failure itself, and a
         # batch stopped by Ctrl-C made each worker log its lost scheduler with a traceback
         cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,

@@ -343,9 +343,16 @@ def worker_context(preload=()):
             [w for w in [saved["PYTHONWARNINGS"]] if w] + ["ignore:resource_tracker:UserWarning"])
         if not installed:
             os.environ["PYTHONPATH"] = os.pathsep.join([home] + ([saved["PYTHONPATH"]] if saved["PYTHONPATH"] else []))
+        # the server starts ignoring SIGINT (an ignored signal stays ignored across exec): a
+        # Ctrl-C while it imports its preloaded modules printed its traceback; it ignores SIGINT
+        # from then on anyway, and psrig's workers set their own handling
+        previous = (signal.signal(signal.SIGINT, signal.SIG_IGN)
+                    if threading.current_thread() is threading.main_thread() else None)
         try:
             multiprocessing.forkserver.ensure_running()
         finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
             for key, value in saved.items():
                 if value is None:
                     os.environ.pop(key, None)

@@ -183,6 +183,12 @@ def _run_one(root, options, force, start, stop, jobs, token):
     return outcome
 
 
+def _deferred_interrupt():
+    from .decode.pool import _deferred_interrupt as deferred
+
+    return deferred()
+
+
 def _init_worker(reader):
     """Initializer of a ``run --jobs`` worker: it dies with its parent (:func:`watch_lifeline`),
     and a Ctrl-C finding it idle is the parent's to handle (no traceback from the worker)."""
@@ -328,7 +334,8 @@ def run_sessions(roots, *, options=None, force=False, start=None, stop=None, job
         work = (options, force, start, stop, 1)
         with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=_init_worker,
                                                     initargs=(lifeline(context),)) as pool:
-            futures = {root: pool.submit(_run_one, root, *work, token) for root, token in tokens.items()}
+            with _deferred_interrupt():   # submitting starts workers (see decode.pool)
+                futures = {root: pool.submit(_run_one, root, *work, token) for root, token in tokens.items()}
             try:
                 for root, future in futures.items():
                     try:

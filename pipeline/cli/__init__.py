@@ -45,8 +45,12 @@ def build_parser():
 
 def main(argv=None):
     """Entry point of the ``psrig`` console script. Returns the process exit code."""
-    parser = build_parser()
-    args, extra = parser.parse_known_args(argv)
+    try:   # imports every command's module (and what its options read): a Ctrl-C may land here
+        parser = build_parser()
+        args, extra = parser.parse_known_args(argv)
+    except KeyboardInterrupt:
+        print("psrig: interrupted", file=sys.stderr)
+        return 130
     if extra:
         return _unknown(parser, args, extra)
     if not getattr(args, "func", None):

@@ -120,6 +120,9 @@ def _init_worker(lifeline):
     # It works under its parent's session lock: it must not outlive the parent (a SIGKILLed
     # parent would otherwise leave it, the fork server and the resource tracker running).
     watch_lifeline(lifeline)
+    # A Ctrl-C reaches the terminal's whole process group: the parent stops the decode (it
+    # starts no further frame and records those done); a worker, idle or not, prints nothing.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _io_thread():
@@ -361,7 +364,10 @@ TICK = 0.25
 
 
 def _run_pooled(running, tasks, finished, committer, bar):
-    pending = {running.submit(decode_task, task, commit=False): task for task in tasks}
+    # submitting starts the workers: an interrupt while one is being started left it reading
+    # semaphores its parent had removed by then (a traceback); it is held until all are started
+    with _deferred_interrupt():
+        pending = {running.submit(decode_task, task, commit=False): task for task in tasks}
     try:
         waiting = set(pending)
         while waiting:
@@ -422,15 +428,23 @@ def _deferred_interrupt():
         yield
         return
     held = []
-    previous = signal.signal(signal.SIGINT, lambda number, frame: held.append((number, frame)))
+    # SIGTERM too: the command line turns it into an interrupt (pipeline.cli)
+    previous = {sig: signal.signal(sig, lambda number, frame: held.append((number, frame)))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
-        if held and callable(previous):
-            previous(*held[0])
-        elif held and previous == signal.SIG_DFL:
-            raise KeyboardInterrupt
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if held:
+            number, frame = held[0]
+            handler = previous[number]
+            if callable(handler):
+                handler(number, frame)
+            elif handler == signal.SIG_DFL and number == signal.SIGINT:
+                raise KeyboardInterrupt
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(number)
 
 
 def _outcome(future):
