@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from pipeline.decode.autotransfer import decide_transfer
-from pipeline.gamma import encode_gamma
+from pipeline.core.gamma import encode_gamma
 from tests import SHARED_DATA
 from tests.pipeline.decode.eightbit import DILIGENT, write_eightbit_diligent
 

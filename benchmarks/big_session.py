@@ -40,8 +40,8 @@ import psutil
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.atomic import atomic_path  # noqa: E402
-from pipeline.session import Session  # noqa: E402
+from pipeline.core.atomic import atomic_path  # noqa: E402
+from pipeline.core.session import Session  # noqa: E402
 
 STAGES = ("import", "decode", "calibrate", "lambert", "normals", "integrate", "report")
 TARGET_LAMBERT = 0.5
@@ -91,7 +91,7 @@ def render_frames(folder, shape, lights):
         image = rng.standard_normal((height, width, 3), dtype=np.float32)
         image = np.abs(image, out=image) * np.float32(0.002)
         image[inside] += 0.75 * albedo * shade[:, None] + gloss[:, None]
-        # the rounding of pipeline.imageio.write_image; OpenCV's fast PNG level (a 4 MP frame
+        # the rounding of pipeline.core.imageio.write_image; OpenCV's fast PNG level (a 4 MP frame
         # in a fifth of OpenImageIO's default level's time, for 1 % more bytes)
         pixels = np.clip(np.rint(image * 65535), 0, 65535).astype(np.uint16)
         with atomic_path(path) as tmp:

@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.decode import decode_frame, decode_session
-from pipeline.dng import write_dng, write_dng_file
+from pipeline.core.dng import write_dng, write_dng_file
 from pipeline.decode.pool import decode_task
-from pipeline.session import Session
+from pipeline.core.session import Session
 
 TARGET = 0.3  # seconds per 12 MP frame on the unbiased (mosaic) path
 SHAPE = (3000, 4000)

@@ -18,8 +18,8 @@ import numpy as np
 
 from pipeline.decode import decode_session
 from pipeline.decode import stage as decode_stage
-from pipeline.dng import write_dng
-from pipeline.session import Session
+from pipeline.core.dng import write_dng
+from pipeline.core.session import Session
 
 CASES = {"24 frames of 1 MP": (24, (1024, 1024)), "66 frames of 64 x 96": (66, (64, 96))}
 WAYS = {"default": decode_stage.RECORD_SHARE, "every frame": 0, "once": 1e12}

@@ -7,7 +7,7 @@ by psrig's own encoder (:mod:`pipeline.decode.exr`: 'none' and 'zip', ISA-L leve
 ``psrig decode`` writes) and by OpenImageIO with each lossless codec OpenEXR offers (none, rle,
 zips, zip, piz). Per codec: bytes against the raw floats, the write seconds (one thread) and
 the read seconds, wall and CPU (this process, OpenEXR's threads included), through
-:func:`pipeline.imageio.read_image_native` (best of ``--repeat``,
+:func:`pipeline.core.imageio.read_image_native` (best of ``--repeat``,
 OpenEXR's own thread pool set to ``--threads``; the normals stage reads frames with a thread
 pool of its own, see :func:`pipeline.photometric.stage.read_workers`), summed over the frames.
 """
@@ -24,7 +24,7 @@ import OpenImageIO as oiio
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.decode.exr import ExrBuffer, encode_exr  # noqa: E402
-from pipeline.imageio import read_image, read_image_native, write_image  # noqa: E402
+from pipeline.core.imageio import read_image, read_image_native, write_image  # noqa: E402
 
 CODECS = ("psrig-none", "psrig-zip", "none", "rle", "zips", "zip", "piz")
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from pipeline.photometric.prediction import FOLDS, SAMPLE_PIXELS, held_out_prediction
 from pipeline.photometric.stage import begin_normals, load_object_stack, object_mask
-from pipeline.session import Session
+from pipeline.core.session import Session
 
 
 def main():

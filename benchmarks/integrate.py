@@ -25,7 +25,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from pipeline.imageio import read_mask, read_normal_png
+from pipeline.core.imageio import read_mask, read_normal_png
 from pipeline.integrate import METHODS, integrate_normals_full
 
 TARGET_ERROR_MM = 0.074

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 from scipy import ndimage, optimize
 
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
 
 __all__ = ["Circle", "find_spheres", "find_sphere", "refine_circle", "circle_from_mask",
            "fit_circle", "sphere_image", "credible", "SphereNotFound"]

@@ -7,7 +7,7 @@ given; then each pixel has its own view ray and the sphere has unit radius.
 
 import numpy as np
 
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
 
 __all__ = ["sphere_points", "mirror", "pixel_rays", "check_K", "sphere_centre"]
 

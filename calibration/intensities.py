@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
 
 from .geometry import sphere_points
 

@@ -3,7 +3,7 @@
 import cv2
 import numpy as np
 
-from pipeline.imageio import write_image
+from pipeline.core.imageio import write_image
 
 __all__ = ["overlay", "write_overlay", "write_sphere_overlays"]
 

@@ -7,7 +7,7 @@ perspective, camera frame in sphere radii.
 
 import numpy as np
 
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
 
 __all__ = ["triangulate", "light_directions_at", "frame_offset", "near_decision"]
 

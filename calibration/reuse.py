@@ -11,10 +11,10 @@ import time
 from pathlib import Path
 
 from pipeline.decode import frame_size
-from pipeline.errors import InputError, PsrigError, StageError
-from pipeline.lightsio import LightSet, read_lights_yaml, write_lights_yaml, write_lp
-from pipeline.paths import LIGHTS, LIGHTS_LP
-from pipeline.session import Session, file_sha256
+from pipeline.core.errors import InputError, PsrigError, StageError
+from pipeline.core.lightsio import LightSet, read_lights_yaml, write_lights_yaml, write_lp
+from pipeline.core.paths import LIGHTS, LIGHTS_LP
+from pipeline.core.session import Session, file_sha256
 
 __all__ = ["reuse_calibration"]
 
@@ -73,7 +73,7 @@ def reuse_calibration(session, source, *, force=False, echo=print):
 
     Parameters
     ----------
-    session : pipeline.session.Session
+    session : pipeline.core.session.Session
     source : path
         The calibrated session.
     force : bool

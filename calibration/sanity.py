@@ -20,7 +20,7 @@ masks and 1 : 1.2 ellipses give (docs/calibration.md).
 import numpy as np
 from scipy import ndimage
 
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
 
 from .circle import SphereNotFound, credible, refine_circle
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import ndimage
 
-from pipeline.errors import InputError, PsrigError
+from pipeline.core.errors import InputError, PsrigError
 
 from .circle import (Circle, SphereNotFound, circle_from_mask, credible, find_spheres, refine_circle,
                      sphere_image)

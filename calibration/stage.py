@@ -10,12 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.gamma import encode_gamma
-from pipeline.errors import ImageFileError, InputError, StageError
-from pipeline.imageio import read_image, read_mask
-from pipeline.session import file_sha256
-from pipeline.lightsio import LightSet, exclusion_note, read_lights_yaml, write_lights_yaml, write_lp
-from pipeline.paths import EXCLUDE, LIGHTS, LIGHTS_LP
+from pipeline.core.gamma import encode_gamma
+from pipeline.core.errors import ImageFileError, InputError, StageError
+from pipeline.core.imageio import read_image, read_mask
+from pipeline.core.session import file_sha256
+from pipeline.core.lightsio import LightSet, exclusion_note, read_lights_yaml, write_lights_yaml, write_lp
+from pipeline.core.paths import EXCLUDE, LIGHTS, LIGHTS_LP
 from pipeline.settings.calibrate import CalibrateOptions
 from pipeline.core.stage import Stage
 
@@ -256,7 +256,7 @@ def calibrate_session(session, *, circle=None, sphere_mask=None, K=None, outline
 
     Parameters
     ----------
-    session : pipeline.session.Session
+    session : pipeline.core.session.Session
     circle : (cx, cy, r), list of them, or None
         Sphere outlines, pixels; found when None.
     sphere_mask : path or None

@@ -14,8 +14,8 @@ after a worker died in it: it finds the normals it recorded (or, their scratch g
 session whole) and goes on. Workers must see the session folders at the same paths as the
 client (a shared file system).
 
-The client holds every session's lock for the whole batch (:mod:`pipeline.lock`); its tasks
-act under it (:func:`pipeline.lock.act_under` with the lock's token), so a task still running
+The client holds every session's lock for the whole batch (:mod:`pipeline.core.lock`); its tasks
+act under it (:func:`pipeline.core.lock.act_under` with the lock's token), so a task still running
 after its client died writes nothing to the session's manifest.
 
 Dask is an optional dependency (``psrig[cluster]``): it is imported only inside these functions.
@@ -30,12 +30,12 @@ import uuid
 import warnings
 from pathlib import Path
 
-from .errors import InputError, PsrigError, StageError
-from .lock import act_under
+from .core.errors import InputError, PsrigError, StageError
+from .core.lock import act_under
 from .photometric import WHOLE_IMAGE, assemble_normals, normals_summary, plan_normals, run_tile
-from .progress import progress
+from .core.progress import progress
 from .runner import SessionOutcome, check_stage_range, lock_sessions, run_stage, wanted_options
-from .session import STAGES, Session
+from .core.session import STAGES, Session
 from .core.stage import Outcome
 
 __all__ = ["run_batch", "open_client", "summary_table", "TILE_PIXELS", "CONNECT_TIMEOUT"]

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import yaml
 
-from .errors import SessionError, StageError
+from .core.errors import SessionError, StageError
 from .evaluate import evaluate_session
 from .report import INDEX
 from .runner import run_session
-from .yamlio import load_yaml
+from .core.yamlio import load_yaml
 
 __all__ = ["run_demo", "prepare_folder", "DEMO_MARK"]
 
@@ -45,7 +45,7 @@ def prepare_folder(folder, force=False):
     if not force:
         raise SessionError(f"{folder}: already holds a demo session; use --force to replace it "
                            "(or `psrig run` to reprocess it)")
-    from .session import Session
+    from .core.session import Session
 
     with Session.open(folder, writer="demo"):  # not under a command still writing it
         shutil.rmtree(folder)
@@ -62,7 +62,7 @@ def _capture(folder, echo):
         raise StageError("capture: module rig.capture is missing from this installation") from None
     from rig.config import get_rig
 
-    from .session import Session
+    from .core.session import Session
 
     start = time.perf_counter()
     rig = get_rig("sim")
@@ -101,7 +101,7 @@ def run_demo(folder, *, force=False, echo=print):
     folder = prepare_folder(folder, force)
     session = _capture(folder, echo)
     run_session(session.root, echo=echo)
-    from .session import Session
+    from .core.session import Session
 
     scores = evaluate_session(Session.open(folder))
     return {"session": str(folder), "report": str(Path(folder) / INDEX), "scores": scores,

@@ -22,12 +22,12 @@ from pathlib import Path
 
 from calibration.stage import CALIBRATE
 from .decode.stage import DECODE
-from .errors import PsrigError, SessionError, StageError, describe_os_error
+from .core.errors import PsrigError, SessionError, StageError, describe_os_error
 from .integrate.stage import INTEGRATE
-from .lock import act_under, lifeline, watch_lifeline, worker_context
+from .core.lock import act_under, lifeline, watch_lifeline, worker_context
 from .photometric import NORMALS
 from .report.stage import REPORT
-from .session import STAGES, Session
+from .core.session import STAGES, Session
 from .core.stage import Outcome
 
 __all__ = ["run_session", "run_sessions", "lock_sessions", "run_stage", "check_stage_range", "RUNNERS", "StageOutcome",
@@ -184,7 +184,7 @@ def _run_one(root, options, force, start, stop, jobs, token):
 
 
 def _deferred_interrupt():
-    from .decode.pool import _deferred_interrupt as deferred
+    from .decode.pool import deferred_interrupt as deferred
 
     return deferred()
 
@@ -306,7 +306,7 @@ def run_sessions(roots, *, options=None, force=False, start=None, stop=None, job
     the others. With one job the sessions run in this process, one after the other. (A batch
     on Dask, with photometric stereo in pixel tiles, is :func:`pipeline.cluster.run_batch`.)
     With more, this process takes every session's lock (``wait``: waiting for other writers)
-    and the worker processes act under it; they die with this process (:mod:`pipeline.lock`).
+    and the worker processes act under it; they die with this process (:mod:`pipeline.core.lock`).
     """
     roots = [str(Path(r)) for r in roots]
     if jobs <= 1 or len(roots) == 1:

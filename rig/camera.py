@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import usb.core
 import usb.util
 
-from pipeline.errors import PsrigError
+from pipeline.core.errors import PsrigError
 from rig import exposure as exposure_values, ptp
 from rig.exposure import choose_value, format_exposure
 from rig.ptp import EventCode, OperationCode as Op, PropCode, ResponseCode as RC

@@ -48,9 +48,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import PsrigError, SessionError, describe_os_error
-from pipeline.progress import progress as progress_bar
-from pipeline.session import FOLDERS, MANIFEST, Session, now_iso
+from pipeline.core.errors import PsrigError, SessionError, describe_os_error
+from pipeline.core.progress import progress as progress_bar
+from pipeline.core.session import FOLDERS, MANIFEST, Session, now_iso
 from rig.camera import CameraError, format_exposure
 from rig.drivers import make_camera, make_light_controller
 from rig.keepalive import LightHold
@@ -66,7 +66,7 @@ PARTIAL = "raw/.partial"
 SPHERE_PROMPT = "Place the chrome sphere where the object was (object removed), then press Enter"
 OUTLINE_PROMPT = ("Light the sphere(s) evenly with the room light (the rig's lights stay off; camera and "
                   "spheres unmoved) for the outline photo, then press Enter")
-_TEMP_FILE = re.compile(r"^\..+\.tmp(\.[^.]*)?$")  # pipeline.atomic's temporary names
+_TEMP_FILE = re.compile(r"^\..+\.tmp(\.[^.]*)?$")  # pipeline.core.atomic's temporary names
 #: Seconds between manifest saves during a capture (0: after every frame, the default; a manifest
 #: save costs a few ms with libyaml). The raw files are written atomically at once either way; a
 #: frame whose manifest entry was not saved yet when the process died is adopted on --resume

@@ -7,7 +7,7 @@ ones too) build their key tables from them, so one key is checked the same way e
 
 import numpy as np
 
-from pipeline.errors import PsrigError
+from pipeline.core.errors import PsrigError
 
 __all__ = ["ConfigError", "integer", "number", "usb_id", "text", "choice", "boolean", "mapping",
            "vectors", "vector"]

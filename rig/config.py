@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from pipeline.errors import InputError
-from pipeline.lightsio import LightSet, read_lp
-from pipeline.yamlio import load_yaml, plain
+from pipeline.core.errors import InputError
+from pipeline.core.lightsio import LightSet, read_lp
+from pipeline.core.yamlio import load_yaml, plain
 from rig import checks
 from rig.checks import ConfigError
 from rig.drivers import SHARED_LIGHT_KEYS, camera_driver, light_driver
@@ -124,7 +124,7 @@ class RigConfig:
         return {f.name: plain(getattr(self, f.name), 9) for f in fields(self)}
 
     def light_set(self):
-        """The nominal lights as a :class:`pipeline.lightsio.LightSet` (intensities 1)."""
+        """The nominal lights as a :class:`pipeline.core.lightsio.LightSet` (intensities 1)."""
         return LightSet(self.lights.directions.copy(), positions=self.lights.positions,
                         source=f"nominal, rig '{self.name}' ({self.source})")
 

@@ -1,7 +1,7 @@
 """Camera and light drivers: the registries rig files name them from, and the built-in ones.
 
 A rig's ``lights: {driver: NAME, ...}`` and ``camera: {driver: NAME, ...}`` pick a driver from
-:data:`LIGHT_DRIVERS` or :data:`CAMERA_DRIVERS` (:class:`pipeline.registry.Registry`). Each
+:data:`LIGHT_DRIVERS` or :data:`CAMERA_DRIVERS` (:class:`pipeline.core.registry.Registry`). Each
 driver declares and checks its OWN keys (:attr:`Driver.keys`), builds its device
 (:meth:`Driver.create`) and says how it combines with others (a simulated camera needs lights
 that report which light they lit). A third-party driver is a Python package that declares an
@@ -16,7 +16,7 @@ asks for it. Nothing here imports pyserial, pyusb or gphoto2: the drivers import
 modules only when they build a device.
 """
 
-from pipeline.registry import Registry
+from pipeline.core.registry import Registry
 from rig import checks
 from rig.checks import ConfigError
 

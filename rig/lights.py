@@ -31,7 +31,7 @@ import time
 
 import serial
 
-from pipeline.errors import PsrigError
+from pipeline.core.errors import PsrigError
 
 __all__ = [
     "LightError", "LightConnectionError", "LightTimeout", "LightProtocolError",

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.errors import PsrigError
+from pipeline.core.errors import PsrigError
 
 __all__ = ["PreviewError", "FrameStats", "analyse_raw", "brightest_light", "default_lights",
            "take_preview", "format_stats", "check_clipping", "TARGET", "PERCENTILES"]
@@ -166,7 +166,7 @@ def check_clipping(stats, max_clipped):
 
 def write_png(path, data):
     """A viewable 8-bit picture of a raw frame (half size, square-root tone curve), atomically."""
-    from pipeline.imageio import write_image
+    from pipeline.core.imageio import write_image
 
     mosaic, colours, black, white, names = _mosaic(data)
     level = black[colours]

@@ -14,7 +14,7 @@ import struct
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-from pipeline.errors import PsrigError
+from pipeline.core.errors import PsrigError
 
 __all__ = [
     "HEADER",

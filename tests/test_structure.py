@@ -115,3 +115,26 @@ def test_the_checks_can_fail():
     node = tree.body[0]
     assert _resolve("pipeline.photometric.stage", Path("stage.py"), node) == "pipeline.photometric.engine"
     assert _resolve("pipeline.photometric", Path("__init__.py"), node) == "pipeline.photometric.engine"
+
+
+def _package(module):
+    """The package a module belongs to, as the floor plan counts them: each subpackage of
+    pipeline, pipeline's own top floor (its root modules), its face (pipeline/__init__.py) and
+    entry point (__main__), and rig and calibration whole."""
+    parts = module.split(".")
+    if parts[0] != "pipeline":
+        return parts[0]
+    if len(parts) == 1:
+        return "pipeline (face)"
+    if parts[1] == "__main__":   # python -m pipeline: the command line's entry point
+        return "pipeline (entry point)"
+    sub = ROOT / "pipeline" / parts[1]
+    return f"pipeline.{parts[1]}" if sub.is_dir() else "pipeline (top floor)"
+
+
+def test_no_import_circle_between_packages(modules):
+    graph = {}
+    for importer, targets in _graph(modules).items():
+        edges = graph.setdefault(_package(importer), set())
+        edges.update(_package(t) for t in targets if _package(t) != _package(importer))
+    assert _circles(graph) == []

@@ -14,7 +14,7 @@ import sys
 import threading
 
 from .. import __version__
-from ..errors import PsrigError, describe_os_error
+from ..core.errors import PsrigError, describe_os_error
 from .writing import WRITERS, add_wait_option
 
 __all__ = ["main", "COMMANDS"]

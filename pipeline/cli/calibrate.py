@@ -1,7 +1,7 @@
 """``psrig calibrate SESSION [--circle CX,CY,R[;CX,CY,R]] [--sphere-mask FILE] [--outline FILE | --no-outline]
 [--K FILE] [--force]`` or ``psrig calibrate SESSION --from OTHER_SESSION``."""
 
-from ..errors import InputError
+from ..core.errors import InputError
 from .writing import open_session
 
 __all__ = ["register", "parse_circles"]

@@ -59,7 +59,7 @@ def run(args):
         from rig.sim.rig import SimulatedRig
 
         sim = SimulatedRig(rig, faults=os.environ[FAULTS_ENV])
-    from ..session import MANIFEST
+    from ..core.session import MANIFEST
 
     # an existing session is locked before any device is touched (a new one, once it is made)
     target = open_session(args.session, args) if (Path(args.session) / MANIFEST).is_file() else args.session

@@ -7,7 +7,7 @@ prints the Markdown table, and is deterministic (fixed seeds).
 import time
 from pathlib import Path
 
-from ..errors import InputError
+from ..core.errors import InputError
 
 __all__ = ["register", "parse_floats"]
 

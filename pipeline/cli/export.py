@@ -1,6 +1,6 @@
 """``psrig export SESSION --relight DIR [--format exr|png]``"""
 
-from ..errors import InputError
+from ..core.errors import InputError
 
 __all__ = ["register"]
 
@@ -21,7 +21,7 @@ def register(sub):
 
 def run(args):
     from ..relight import export_relight
-    from ..session import Session
+    from ..core.session import Session
 
     if not args.relight:
         raise InputError("export: nothing to export: give --relight DIR")

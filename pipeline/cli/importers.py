@@ -82,7 +82,7 @@ def _session(args):
         return args.session
     values = getattr(args, getattr(args, "last_patterns", None) or "object", None) or []
     if len(values) < 2:
-        from ..errors import InputError
+        from ..core.errors import InputError
 
         raise InputError("give the SESSION folder to create, e.g. psrig import images SESSION --object 'img*.png'")
     return values.pop()
@@ -94,7 +94,7 @@ def _pattern(option, values):
     sorting would reorder (img1 img10 img2) is refused: that is a pattern the shell expanded."""
     if values is None or len(values) == 1:
         return None if values is None else values[0]
-    from ..errors import InputError
+    from ..core.errors import InputError
     from ..importers import natural_key
 
     files = [v for v in values if not any(char in v for char in "*?[")]

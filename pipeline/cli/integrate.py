@@ -9,7 +9,7 @@ parser is built, so that ``psrig --help`` stays fast.
 
 from pathlib import Path
 
-from ..errors import InputError
+from ..core.errors import InputError
 from ..settings.integrate import INTEGRATION_METHODS as METHOD_NAMES, IntegrateOptions
 from .writing import open_session
 
@@ -63,7 +63,7 @@ def run(args):
 
 
 def _run_files(args, K, method, options):
-    from ..imageio import read_image, read_mask
+    from ..core.imageio import read_image, read_mask
     from ..integrate import integrate_files, write_depth_outputs
     from ..integrate.stage import MESH_KEYS
 
@@ -93,7 +93,7 @@ def _run_files(args, K, method, options):
 
 
 def _read_normal_map(path):
-    from ..imageio import read_image, read_normal_png
+    from ..core.imageio import read_image, read_normal_png
 
     if not path.is_file():
         raise InputError(f"{path}: normal map not found")

@@ -3,7 +3,7 @@
 import time
 from pathlib import Path
 
-from ..errors import InputError
+from ..core.errors import InputError
 
 __all__ = ["register"]
 
@@ -46,7 +46,7 @@ def floats(text, what, count):
 
 def _load(args):
     from ..experiments import reflectometry as exp
-    from ..imageio import read_image
+    from ..core.imageio import read_image
 
     light = floats(args.light, "--light", 3) if args.light else exp.DEFAULT_LIGHT
     if args.image:

@@ -30,7 +30,7 @@ def register(subparsers):
 
 
 def run(args):
-    from ..errors import InputError
+    from ..core.errors import InputError
     from ..report import INDEX, compare_sessions, report_session
 
     if args.out and len(args.sessions) < 2:

@@ -11,13 +11,13 @@ import os
 import sys
 from pathlib import Path
 
-from ..errors import InputError
+from ..core.errors import InputError
 from ..settings import DecodeOptions, IntegrateOptions, NormalsOptions, ReportOptions
 from .calibrate import parse_circles
 
 __all__ = ["register", "session_summary", "STAGES"]
 
-#: pipeline.session.STAGES, spelled out so that building the parser imports no numpy (a test
+#: pipeline.core.session.STAGES, spelled out so that building the parser imports no numpy (a test
 #: checks that the two agree)
 STAGES = ("decode", "calibrate", "normals", "integrate", "report")
 
@@ -127,9 +127,9 @@ def run(args):
 
 def _print_report_path(outcome):
     """The report's path after a run's stage lines (the file a person opens next)."""
-    from ..errors import PsrigError
-    from ..paths import REPORT
-    from ..session import Session
+    from ..core.errors import PsrigError
+    from ..core.paths import REPORT
+    from ..core.session import Session
 
     try:
         path = _output(Session.open(outcome.root), REPORT)
@@ -151,9 +151,9 @@ def session_summary(outcome):
         ``warnings`` ["stage: text"] and ``outputs`` {what: absolute path} of the files a person
         opens (report, normals, depth, meshes), those that exist.
     """
-    from ..errors import PsrigError
-    from ..paths import DEPTH, MESH, MESH_OBJ, NORMALS, REPORT
-    from ..session import Session
+    from ..core.errors import PsrigError
+    from ..core.paths import DEPTH, MESH, MESH_OBJ, NORMALS, REPORT
+    from ..core.session import Session
 
     try:
         session = Session.open(outcome.root)
@@ -202,7 +202,7 @@ def _details(summary):
 def _output(session, rel):
     """The absolute path of a session file that exists, else None (also for a failed session
     whose folders the run refused: the summary must not fail where the run did)."""
-    from ..errors import PsrigError
+    from ..core.errors import PsrigError
 
     try:
         path = session.path(rel) if session else None

@@ -1,7 +1,7 @@
 """Opening a session from a command that writes it: the session lock, ``--wait``, the sweep note.
 
 Every sub-command that writes a session (:data:`WRITERS`) takes the session's lock for as long
-as it runs (:mod:`pipeline.lock`); a second writer is refused with one line naming the holder,
+as it runs (:mod:`pipeline.core.lock`); a second writer is refused with one line naming the holder,
 or waits with ``--wait``. The others only read (``rigs``, ``experiments``, ``reflectometry``,
 ``integrate --normals ... --out DIR``, which writes outside any session).
 """
@@ -30,7 +30,7 @@ def say(args, line):
 def open_session(folder, args):
     """Open ``folder`` for the command of ``args``: lock taken (waiting with ``--wait``), the
     temporaries an interrupted run left removed and said."""
-    from ..session import Session   # imported when a command runs: psrig --help stays fast
+    from ..core.session import Session   # imported when a command runs: psrig --help stays fast
 
     session = Session.open(folder, writer=args.command, wait=getattr(args, "wait", False),
                            on_wait=lambda line: say(args, f"{folder}: {line}"))

@@ -21,14 +21,14 @@ line. From that one declaration come
 >>> Demo.check({"levle": 0.2})
 Traceback (most recent call last):
 ...
-pipeline.errors.InputError: unknown demo option 'levle'; known: level
+pipeline.core.errors.InputError: unknown demo option 'levle'; known: level
 """
 
 import argparse
 import dataclasses
 from dataclasses import dataclass
 
-from ..errors import InputError
+from .errors import InputError
 
 __all__ = ["Options", "OptionSpec", "option", "switch", "SWITCH"]
 

@@ -7,7 +7,7 @@ A stage is a :class:`Stage`: a ``name``, the :class:`pipeline.core.options.Optio
 current. Its record (``session.yaml``'s ``stages.<name>``) holds its parameters, input and
 output hashes, and :meth:`Stage.replay` turns the recorded parameters back into the options
 that reproduce them, so that ``psrig run`` keeps what a stage was last run with. Staleness,
-hashes and the record itself are :class:`pipeline.session.Session`'s
+hashes and the record itself are :class:`pipeline.core.session.Session`'s
 (``stage_is_current``, ``record_stage``), the same for every stage.
 
 The stages themselves live beside their topic (``pipeline/decode/stage.py``,

@@ -9,7 +9,7 @@ Where things live: :mod:`.formats` (image or raw, by content), :mod:`.frame` (on
 numpy, uncompressed or ZIP), :mod:`.pool` (worker processes), :mod:`.stage` (the ``decode``
 stage), :mod:`.record` (what its record says was assumed), :mod:`.hdr` (merging an exposure
 bracket) and :mod:`.merge` (the stage's merge tasks). Transfer functions are in
-:mod:`pipeline.gamma`; which frames are one bracket, :mod:`pipeline.brackets`.
+:mod:`pipeline.core.gamma`; which frames are one bracket, :mod:`pipeline.core.brackets`.
 Measurements: docs/decoding.md.
 """
 

@@ -25,7 +25,7 @@ better; below that the choice is a guess, and said so.
 
 import numpy as np
 
-from ..gamma import encode_gamma, inverse_gamma_lut
+from ..core.gamma import encode_gamma, inverse_gamma_lut
 from .transfer import describe_transfer
 
 __all__ = ["CANDIDATES", "MIN_RATIO", "MIN_FRAMES", "rank3_scores", "decide", "decide_transfer",

@@ -14,7 +14,7 @@ from functools import lru_cache
 import OpenImageIO as oiio
 import rawpy
 
-from ..errors import ImageFileError
+from ..core.errors import ImageFileError
 
 __all__ = ["FrameFormat", "frame_format", "readable_formats", "RAW_EXAMPLES", "FrameTooLarge",
            "MAX_IMAGE_PIXELS", "IMAGE_DECODE_BYTES_PER_PIXEL", "check_image_size", "png_problem"]

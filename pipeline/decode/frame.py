@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ImageFileError, InputError
-from ..gamma import parse_gamma
+from ..core.errors import ImageFileError, InputError
+from ..core.gamma import parse_gamma
 from ..settings.decode import DecodeOptions
 from .formats import frame_format
 from .image import decode_image

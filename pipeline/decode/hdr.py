@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..brackets import format_seconds
-from ..errors import InputError
+from ..core.brackets import format_seconds
+from ..core.errors import InputError
 
 __all__ = ["merge_exposures", "MergedExposure", "exposure_ratios", "ratio_error", "WELL_EXPOSED",
            "MIN_RATIO_PIXELS", "RATIO_SAMPLE"]

@@ -10,8 +10,8 @@ integer value at the type's maximum is saturated.
 import numpy as np
 import OpenImageIO as oiio
 
-from ..errors import ImageFileError, InputError
-from ..gamma import inverse_gamma_lut, parse_gamma
+from ..core.errors import ImageFileError, InputError
+from ..core.gamma import inverse_gamma_lut, parse_gamma
 from .formats import check_image_size
 from .transfer import choose_transfer, declared_transfer
 

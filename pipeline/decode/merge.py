@@ -1,6 +1,6 @@
 """The decode stage's exposure merge: the exposures of a bracket -> ``linear/<group>.exr``.
 
-A merge task holds the exposures of one bracket group (:class:`pipeline.brackets.BracketGroup`)
+A merge task holds the exposures of one bracket group (:class:`pipeline.core.brackets.BracketGroup`)
 in one of two forms, and the pool (:func:`pipeline.decode.pool.decode_task`) writes its result
 like a decoded frame:
 
@@ -21,8 +21,8 @@ references, or over their decoded outputs), so a re-shot exposure re-merges its 
 import hashlib
 import json
 
-from ..brackets import format_seconds
-from ..errors import PsrigError
+from ..core.brackets import format_seconds
+from ..core.errors import PsrigError
 from .hdr import merge_exposures, ratio_error
 
 __all__ = ["merge_linear", "merge_task", "lit_inputs", "decoded_inputs", "unmergeable", "TOLERANCE",

@@ -26,20 +26,20 @@ import threading
 import cv2
 import numpy as np
 
-from ..atomic import atomic_commit, atomic_write_begin, atomic_write_bytes, discard_temp
+from ..core.atomic import atomic_commit, atomic_write_begin, atomic_write_bytes, discard_temp
 from .exr import ExrBuffer, encode_exr
 from .formats import frame_format
 from .frame import check_options, decode_frame
 from .merge import merge_linear
 from .raw import decode_raw
-from ..errors import ImageFileError, PsrigError, describe_os_error
-from ..imageio import read_image, read_mask
-from ..lock import lifeline, watch_lifeline, worker_context
-from ..progress import progress
-from ..yamlio import plain
+from ..core.errors import ImageFileError, PsrigError, describe_os_error
+from ..core.imageio import read_image, read_mask
+from ..core.lock import lifeline, watch_lifeline, worker_context
+from ..core.progress import progress
+from ..core.yamlio import plain
 
 __all__ = ["run_tasks", "decode_task", "write_saturation", "encode_saturation", "start_pool",
-           "prepare_pool", "release_workspace"]
+           "prepare_pool", "release_workspace", "deferred_interrupt"]
 
 _RGB = ("R", "G", "B")
 _io = None
@@ -103,7 +103,7 @@ def write_receipt(receipt):
 
 def _write(path, data, commit=True):
     """Atomic write of ``data``; with ``commit`` False only the first half (temporary file,
-    returned; finish with :func:`pipeline.atomic.atomic_commit`). Disk errors become
+    returned; finish with :func:`pipeline.core.atomic.atomic_commit`). Disk errors become
     ImageFileError naming the file."""
     try:
         if commit:
@@ -236,7 +236,7 @@ def decode_task(task, *, commit=True):
         (:func:`pipeline.decode.merge.merge_task`).
     commit : bool
         True: the outputs are in place (fsync, rename) on return. False: they are written to
-        temporary files beside them, returned in ``temps`` for :func:`pipeline.atomic.atomic_commit`.
+        temporary files beside them, returned in ``temps`` for :func:`pipeline.core.atomic.atomic_commit`.
 
     Returns
     -------
@@ -288,7 +288,7 @@ def prepare_pool():
 
 def start_pool(jobs):
     """A process pool of up to ``jobs`` decode workers (started as tasks arrive), each killed
-    as soon as this process ends (:func:`pipeline.lock.watch_lifeline`).
+    as soon as this process ends (:func:`pipeline.core.lock.watch_lifeline`).
 
     Use it as a context manager and pass it to :func:`run_tasks` to reuse the same workers
     for several batches (reference frames, then lit frames).
@@ -350,7 +350,7 @@ def _run_here(tasks, finished, committer, bar):
         for task in tasks:
             finished.drain()   # what is committed is reported before the next frame starts
             frame_id, *outcome = decode_task(task, commit=False)
-            with _deferred_interrupt():   # a commit started is a commit reported
+            with deferred_interrupt():   # a commit started is a commit reported
                 finished.add(frame_id, tuple(outcome),
                              committer.submit(_commit, outcome[3], _receipt(task, outcome)))
             bar.update()
@@ -366,7 +366,7 @@ TICK = 0.25
 def _run_pooled(running, tasks, finished, committer, bar):
     # submitting starts the workers: an interrupt while one is being started left it reading
     # semaphores its parent had removed by then (a traceback); it is held until all are started
-    with _deferred_interrupt():
+    with deferred_interrupt():
         pending = {running.submit(decode_task, task, commit=False): task for task in tasks}
     try:
         waiting = set(pending)
@@ -375,7 +375,7 @@ def _run_pooled(running, tasks, finished, committer, bar):
             for future in done:
                 outcome = _outcome(future)
                 task = pending[future]
-                with _deferred_interrupt():   # a commit started is a commit reported
+                with deferred_interrupt():   # a commit started is a commit reported
                     finished.add(task["id"], outcome, committer.submit(_commit, outcome[3], _receipt(task, outcome)))
                 bar.update()
             finished.drain()
@@ -396,7 +396,7 @@ class _Finished:
     def tick(self):
         """Let the caller record what is due while no frame arrives."""
         if self.on_tick is not None:
-            with _deferred_interrupt():
+            with deferred_interrupt():
                 self.on_tick()
 
     def add(self, frame_id, outcome, commit):
@@ -406,7 +406,7 @@ class _Finished:
     def drain(self, wait=False):
         while self.waiting and (wait or self.waiting[0][2].done()):
             futures.wait([self.waiting[0][2]])   # Ctrl-C still ends this wait
-            with _deferred_interrupt():   # ... but never splits a committed frame from its report
+            with deferred_interrupt():   # ... but never splits a committed frame from its report
                 frame_id, (info, error, hashes, _), commit = self.waiting.pop(0)
                 failure = commit.result()
                 error = error or (failure and f"frame {frame_id!r}: {failure}")
@@ -416,7 +416,7 @@ class _Finished:
 
 
 @contextlib.contextmanager
-def _deferred_interrupt():
+def deferred_interrupt():
     """Hold a Ctrl-C (SIGINT) back until the block is over, then raise it.
 
     A Ctrl-C lands between any two bytecodes of the main thread: between a frame's commit being

@@ -27,8 +27,8 @@ import cv2
 import numpy as np
 import rawpy
 
-from ..errors import ImageFileError
-from ..registry import Registry
+from ..core.errors import ImageFileError
+from ..core.registry import Registry
 
 __all__ = ["open_raw", "raw_layout", "decode_raw", "bilinear_demosaic", "bin2x2", "bin_rgb", "METHODS", "RawPath",
            "OTHER_LAYOUTS", "physical_memory"]

@@ -6,8 +6,8 @@ and decoding path of a raw file, how its EXR was written. :func:`assumed` gather
 stage record, :func:`describe` into the lines ``psrig decode`` and ``psrig run`` print.
 """
 
-from ..brackets import format_seconds
-from ..gamma import NAMES
+from ..core.brackets import format_seconds
+from ..core.gamma import NAMES
 from .transfer import describe_transfer
 
 __all__ = ["assumed", "describe", "describe_merged", "describe_failures", "frames_decoded", "recorded_kwargs"]

@@ -2,7 +2,7 @@
 
 Lit frames (object, sphere, target) have the mean of the session's decoded ambient frames
 shot for their kind subtracted (it holds the dark signal too), else the mean of its dark
-frames. In a bracketed session (:mod:`pipeline.brackets`) each exposure has the references
+frames. In a bracketed session (:mod:`pipeline.core.brackets`) each exposure has the references
 shot at its own shutter time subtracted, never another's: a dark or ambient signal grows with
 the exposure.
 """
@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_path
-from ..brackets import format_seconds, frame_shutter, same_shutter
-from ..imageio import read_image, read_mask
-from ..session import LIT_KINDS
+from ..core.atomic import atomic_path
+from ..core.brackets import format_seconds, frame_shutter, same_shutter
+from ..core.imageio import read_image, read_mask
+from ..core.session import LIT_KINDS
 
 __all__ = ["REFERENCE_KINDS", "references", "previous_references", "shutter_label", "write_reference"]
 

@@ -6,7 +6,7 @@ the mean dark frame when it has one. A frame that cannot be decoded is recorded 
 ``failed`` (status 'partial') while the others are decoded; a rerun decodes only what is
 missing or stale. Raw files are only read.
 
-Exposure brackets (:mod:`pipeline.brackets`): each exposure has the ambient (else dark) frames
+Exposure brackets (:mod:`pipeline.core.brackets`): each exposure has the ambient (else dark) frames
 shot at ITS shutter time subtracted (a lit exposure for which the session has references only
 at other shutter times is refused, named: a dark signal grows with the exposure), and the
 exposures of each group are merged into ``linear/<group>.exr`` (:mod:`pipeline.decode.merge`),
@@ -43,13 +43,13 @@ from .frame import check_options, decode_frame, frame_size
 from .merge import decoded_inputs, lit_inputs, merge_task, unmergeable
 from .pool import prepare_pool, run_tasks, start_pool
 from .references import REFERENCE_KINDS, previous_references, references, shutter_label, write_reference
-from ..brackets import bracket_groups, frame_shutter, reference_shutter
-from ..atomic import sweep_tree
-from ..errors import InputError, PsrigError, StageError
-from ..paths import DECODE_SCRATCH
+from ..core.brackets import bracket_groups, frame_shutter, reference_shutter
+from ..core.atomic import sweep_tree
+from ..core.errors import InputError, PsrigError, StageError
+from ..core.paths import DECODE_SCRATCH
 from ..settings.decode import DecodeOptions
 from ..core.stage import Stage
-from ..yamlio import plain
+from ..core.yamlio import plain
 
 __all__ = ["decode_frame", "decode_session", "REFERENCE_KINDS", "DecodeStage", "DECODE"]
 

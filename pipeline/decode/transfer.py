@@ -13,7 +13,7 @@ import zlib
 
 import numpy as np
 
-from ..gamma import inverse_gamma_lut
+from ..core.gamma import inverse_gamma_lut
 
 __all__ = ["declared_transfer", "choose_transfer", "describe_transfer", "icc_transfer", "undeclared_8bit"]
 

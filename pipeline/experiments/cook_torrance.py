@@ -10,7 +10,7 @@ difference of the BRDF values over those samples.
 
 import numpy as np
 
-from ..progress import progress
+from ..core.progress import progress
 from ..reflectance import Geometry, get_model
 from .tables import Table
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..progress import progress
+from ..core.errors import InputError
+from ..core.progress import progress
 from ..reflectance.merl import read_merl
 from .cook_torrance import (DEFAULT_T_LOW, fit_mae, low_frequency_weights, pooled, protocol_geometry,
                             protocol_note)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..progress import progress
+from ..core.progress import progress
 from ..reflectance import Geometry, get_model
 from ..reflectance.cook_torrance import ROUGHNESS_RANGE, LambertSpecular
 from ..reflectance.merl import read_merl

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..progress import progress
+from ..core.progress import progress
 from ..reflectance import Geometry, get_model, solve_batched
 from .cook_torrance import low_frequency_weights
 from .reflectometry import sphere_normals
@@ -212,7 +212,7 @@ def ps_figure(results, truth, mask, image):
 def run_diligent(folder, t_low=0.25, methods=PS_METHODS, shadow=0.1, psrig_default=True):
     """run_methods on a DiLiGenT object folder (grey images divided by the light intensities)."""
     from ..importers import read_diligent
-    from ..errors import InputError
+    from ..core.errors import InputError
 
     obj = read_diligent(folder)
     if obj.normals_gt is None:

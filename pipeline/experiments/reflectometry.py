@@ -11,7 +11,7 @@ a user's image has no such row), each model with its parameter count.
 
 import numpy as np
 
-from ..errors import InputError
+from ..core.errors import InputError
 from ..reflectance import Geometry, get_model
 from ..reflectance.bivariate import BivariateTable
 from ..reflectance.merl import read_merl

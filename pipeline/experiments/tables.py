@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_write_bytes, atomic_write_text
+from ..core.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["Table", "write_outputs", "save_figure", "format_value"]
 

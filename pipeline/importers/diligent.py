@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..imageio import read_mask
-from ..lightsio import LightSet
-from ..session import Session
+from ..core.errors import InputError
+from ..core.imageio import read_mask
+from ..core.lightsio import LightSet
+from ..core.session import Session
 from .write import add_frames, check_sizes, check_target, write_lights, write_object_mask, write_truth_lights, \
     write_truth_normals
 

@@ -13,11 +13,11 @@ from pathlib import Path
 
 from ..decode import frame_format, readable_formats
 from ..decode.formats import FrameTooLarge, png_problem
-from ..errors import InputError, PsrigError
-from ..imageio import read_mask
-from ..lightsio import flag_behind, lp_name, read_intensities, read_lights
-from ..paths import SPHERE_MASK
-from ..session import Session
+from ..core.errors import InputError, PsrigError
+from ..core.imageio import read_mask
+from ..core.lightsio import flag_behind, lp_name, read_intensities, read_lights
+from ..core.paths import SPHERE_MASK
+from ..core.session import Session
 from .write import add_frames, check_sizes, check_target, write_lights, write_mask_file, write_object_mask
 
 __all__ = ["import_images", "expand_glob", "natural_key", "SPHERE_CROP_HINT", "SKIPPED_WORDS", "import_notes"]
@@ -192,7 +192,7 @@ def import_images(dest, object_glob, *, sphere_glob=None, mask=None, lights=None
     mask : path, optional
         Object mask image (white = object), same size as the frames.
     lights : path, optional
-        Any light file :func:`pipeline.lightsio.read_lights` reads (``FILE:NAME`` for an array
+        Any light file :func:`pipeline.core.lightsio.read_lights` reads (``FILE:NAME`` for an array
         of a .mat, .npz or OpenCV file). An .lp file pairs its lines with the object frames by
         file name; other files give light i to the i-th object frame.
     outline : str, optional

@@ -10,12 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, SessionError
+from ..core.errors import InputError, SessionError
 from ..decode import frame_size
-from ..imageio import write_image, write_mask, write_normal_png
-from ..lightsio import write_lights_yaml, write_lp
-from ..paths import LIGHTS, LIGHTS_LP, OBJECT_MASK, TRUTH_LIGHTS, TRUTH_MASK, TRUTH_NORMALS, TRUTH_NORMALS_PNG
-from ..progress import progress
+from ..core.imageio import write_image, write_mask, write_normal_png
+from ..core.lightsio import write_lights_yaml, write_lp
+from ..core.paths import LIGHTS, LIGHTS_LP, OBJECT_MASK, TRUTH_LIGHTS, TRUTH_MASK, TRUTH_NORMALS, TRUTH_NORMALS_PNG
+from ..core.progress import progress
 
 __all__ = ["check_target", "check_sizes", "add_frames", "write_lights", "write_truth_lights", "write_object_mask",
            "write_mask_file", "write_truth_normals"]

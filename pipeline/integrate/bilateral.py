@@ -14,10 +14,10 @@ which also decides where the reweighting settles (see :func:`solve_bilateral`).
 
 import numpy as np
 
-from ..errors import InputError
+from ..core.errors import InputError
 from .grid import assemble, energy, solve_spd
 from .pcg import grid_system, pcg_jacobi
-from ..progress import progress
+from ..core.progress import progress
 
 __all__ = ["solve_smooth", "solve_bilateral"]
 

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..atomic import atomic_path, atomic_write_bytes, atomic_write_text
-from ..errors import InputError
-from ..gamma import encode_gamma
-from ..imageio import write_image
+from ..core.atomic import atomic_path, atomic_write_bytes, atomic_write_text
+from ..core.errors import InputError
+from ..core.gamma import encode_gamma
+from ..core.imageio import write_image
 from ..settings.integrate import MAX_SLOPE_DEG
 
 __all__ = ["depth_to_points", "grid_faces", "split_faces", "mesh_normals", "albedo_colours", "Mesh",

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..jit import Compiled, njit
+from ..core.jit import Compiled, njit
 from .grid import edge_terms
 
 __all__ = ["GridSystem", "grid_system", "pcg_jacobi", "KERNEL"]

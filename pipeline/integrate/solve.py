@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from ..errors import InputError
-from ..jit import single_threaded
-from ..registry import Registry
+from ..core.errors import InputError
+from ..core.jit import single_threaded
+from ..core.registry import Registry
 from .bilateral import solve_bilateral, solve_smooth
 from .grid import build_problem
 

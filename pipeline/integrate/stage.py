@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..atomic import atomic_write_text
-from ..errors import InputError, StageError
-from ..imageio import read_image, read_mask, write_image
-from ..jit import BASE_BYTES, budget_bytes, check_budget
-from ..paths import (ALBEDO, DEPTH, INTEGRATION, MESH, MESH_OBJ, MESH_TEXTURE, NORMALS, NORMALS_MASK, SHADED,
+from ..core.atomic import atomic_write_text
+from ..core.errors import InputError, StageError
+from ..core.imageio import read_image, read_mask, write_image
+from ..core.memory import BASE_BYTES, budget_bytes, check_budget
+from ..core.paths import (ALBEDO, DEPTH, INTEGRATION, MESH, MESH_OBJ, MESH_TEXTURE, NORMALS, NORMALS_MASK, SHADED,
                      UNCERTAINTY)
 from ..settings.integrate import IntegrateOptions
 from ..core.stage import Stage
@@ -207,7 +207,7 @@ def integrate_session(session, *, K=None, method="smooth", force=False, invalid=
         Passed to the method, but for :data:`MESH_KEYS`, which go to the mesh
         (:func:`write_depth_outputs`).
     memory : int or str, optional
-        The memory budget (:func:`pipeline.jit.budget_bytes`; default a share of the
+        The memory budget (:func:`pipeline.core.memory.budget_bytes`; default a share of the
         available memory): a session whose estimated peak (:func:`integrate_memory`) exceeds
         it is refused before the solve, and the record keeps ``memory``.
 

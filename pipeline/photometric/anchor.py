@@ -29,7 +29,7 @@ observations are in memory: about 1 % more CPU time when nothing is corrected.
 
 import numpy as np
 
-from ..errors import InputError
+from ..core.errors import InputError
 from .model import half_vectors
 
 __all__ = ["scale_cone", "highlight_mismatch", "first_verdict", "anchor_scale", "anchor_wanted", "root_range",

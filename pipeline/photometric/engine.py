@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..jit import single_threaded
+from ..core.jit import single_threaded
 from .anchor import highlight_mismatch
 from .lambert import normal_leverage
 from .methods import STATUS

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..errors import InputError
-from ..jit import single_threaded
+from ..core.errors import InputError
+from ..core.jit import single_threaded
 from .anchor import anchor_scale, anchor_wanted, first_verdict
 from .engine import CHUNK_SIZE, KeptSelection, gatherer, prepare_context, run_chunks
 from .frame_gains import FrameCheck, check_frames

@@ -31,7 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..errors import InputError
+from ..core.errors import InputError
 from .frame_directions import check_directions, column_quantiles
 from .methods import shading
 from .selection import select_observations

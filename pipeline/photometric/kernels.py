@@ -4,7 +4,7 @@
 (each pixel's normal and 9 coefficients by Levenberg-Marquardt, the same mathematics and
 stopping rule), pixel by pixel: a pixel's used observations are copied into one row per
 quantity, and each sum over them (the 25 moments, the basis sums, the cost) is one loop with
-scalar accumulators, which the compiler vectorises (:data:`pipeline.jit.VECTORISE`: measured
+scalar accumulators, which the compiler vectorises (:data:`pipeline.core.jit.VECTORISE`: measured
 on DiLiGenT reading, 30 -> 9 us per pixel with the fit's variable projection and damping rule).
 Lights may be shared (K, 3) or per pixel (N, K, 3). Everything is float64; each pixel's result
 depends on that pixel alone, so it is the same whatever chunk it is computed in.
@@ -15,7 +15,7 @@ defined in, so a kernel calling a helper from another file would load stale comp
 after that file changed.
 
 Nothing is compiled at import: the kernels are compiled (or loaded from numba's on-disk cache)
-at the first call through :class:`pipeline.jit.Compiled`, under a lock, so concurrent chunk
+at the first call through :class:`pipeline.core.jit.Compiled`, under a lock, so concurrent chunk
 threads wait for one compilation. The kernels release the GIL (``nogil``), so the chunk
 threads of the engine run them on all cores. If numba is missing or compiling fails,
 :func:`kernels` warns once and returns None, and callers use numpy (``PSRIG_NO_JIT=1`` selects
@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from ..jit import ENV_NO_JIT, VECTORISE, Compiled, njit
+from ..core.jit import ENV_NO_JIT, VECTORISE, Compiled, njit
 
 __all__ = ["jit_enabled", "kernels", "fit_pixels_jit", "select_robust_jit", "shape_terms_jit", "compile_seconds",
            "ENV_NO_JIT", "KERNELS"]

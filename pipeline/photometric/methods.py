@@ -27,9 +27,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..errors import InputError
+from ..core.errors import InputError
 
-from ..registry import Registry
+from ..core.registry import Registry
 from ..settings.normals import AlternationOptions, EstimateOptions, SelectionOptions
 from ..reflectance import MODELS, Geometry, get_model
 from .model import unit

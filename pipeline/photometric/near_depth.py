@@ -19,7 +19,7 @@ mean, so separate objects at different heights share it); orthographic relief (a
 import cv2
 import numpy as np
 
-from ..golden import golden_section, golden_steps
+from ..core.golden import golden_section, golden_steps
 from ..integrate import integrate_normals
 from .near_lights import PointLights
 from .methods import STATUS

@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from ..errors import InputError
+from ..core.errors import InputError
 from ..settings.normals import FOLDS
 from .estimate import estimate_normals
 from .model import half_vectors
@@ -224,8 +224,8 @@ def held_out_prediction(images, valid, lights, mask, *, options=None, folds=FOLD
 def read_prediction(session):
     """``normals/prediction.yaml`` of ``session`` as a dict, or None when the normals stage wrote
     none (an older run, or ``--holdout-folds 0``)."""
-    from ..paths import PREDICTION
-    from ..yamlio import load_yaml
+    from ..core.paths import PREDICTION
+    from ..core.yamlio import load_yaml
 
     path = session.path(PREDICTION)
     if not path.is_file():

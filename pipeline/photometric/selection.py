@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from ..errors import InputError
+from ..core.errors import InputError
 from ..settings.normals import CONSENSUS, REJECT_K, SCALE_FLOOR, T_SHADOW, WIDE_SPREAD_DEG, WIDE_T_LOW, WIDE_T_SHADOW
 from .kernels import jit_enabled, select_robust_jit
 from .lambert import facing_away, ill_conditioned, lambert_weighted, normal_leverage, solve3

@@ -19,17 +19,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import StageError
-from ..atomic import atomic_write_text
-from ..imageio import (image_size, read_image_native, read_mask, read_workers, to_float, write_image, write_mask,
+from ..core.errors import StageError
+from ..core.atomic import atomic_write_text
+from ..core.imageio import (image_size, read_image_native, read_mask, read_workers, to_float, write_image, write_mask,
                        write_normal_png)
-from ..jit import BASE_BYTES, budget_bytes, check_budget, format_gb
-from ..lightsio import read_exclude, read_lights_yaml
-from ..paths import EXCLUDE, LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, PREDICTION, PREDICTION_IMAGES, UNCERTAINTY
-from ..progress import progress as progress_bar
+from ..core.memory import BASE_BYTES, budget_bytes, check_budget, format_gb
+from ..core.lightsio import read_exclude, read_lights_yaml
+from ..core.paths import EXCLUDE, LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, PREDICTION, PREDICTION_IMAGES, UNCERTAINTY
+from ..core.progress import progress as progress_bar
 from ..settings.normals import FOLDS, EstimateOptions, NormalsOptions
 from ..core.stage import Stage
-from ..yamlio import dump_yaml, plain
+from ..core.yamlio import dump_yaml, plain
 from .anchor import scale_cone
 from .estimate import estimate_normals
 from .methods import METHODS, STATUS, STATUS_NAMES, STATUS_PALETTE, check_method_options, method_traits
@@ -405,7 +405,7 @@ def normals_session(session, *, force=False, show_progress=True, tiled=None, **o
     Lambertian fits scored on predicting them (:mod:`pipeline.photometric.prediction`;
     ``normals/prediction.yaml``, ``normals/prediction.exr``); 0 skips it.
 
-    The option ``memory`` is the budget (:func:`pipeline.jit.budget_bytes`: None for the default share
+    The option ``memory`` is the budget (:func:`pipeline.core.memory.budget_bytes`: None for the default share
     of the available memory, bytes or text such as '8G'). When the stack does not fit it, the
     stage solves tiles from a memory-mapped stack (:mod:`pipeline.photometric.tiles`: the same
     normals; frames found moved are named but not aligned) with ``tiled``

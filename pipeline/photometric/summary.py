@@ -9,7 +9,7 @@ normals`` and ``psrig run`` show them. :func:`normals_summary` is the line print
 
 import numpy as np
 
-from ..paths import EXCLUDE, LIGHTS
+from ..core.paths import EXCLUDE, LIGHTS
 from .frame_gains import UNCALIBRATED_SHARE
 from .methods import share_text
 from .outline import SEEN_WHOLE, mirrored_axes, transposed_axes

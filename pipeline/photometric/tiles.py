@@ -32,11 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_path
-from ..errors import InputError, StageError
-from ..jit import single_threaded
-from ..paths import LIGHTS, TILES_SCRATCH
-from ..session import Session
+from ..core.atomic import atomic_path
+from ..core.errors import InputError, StageError
+from ..core.jit import single_threaded
+from ..core.paths import LIGHTS, TILES_SCRATCH
+from ..core.session import Session
 from .anchor import first_verdict
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)

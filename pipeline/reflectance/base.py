@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..registry import Registry
+from ..core.registry import Registry
 
 __all__ = ["Geometry", "ReflectanceModel", "LinearModel", "MODELS", "register_model", "get_model",
            "solve_batched"]

@@ -17,7 +17,7 @@ It is not fitted to an image: it is the best a bivariate table can hold of the m
 import numpy as np
 from scipy import ndimage
 
-from ..errors import InputError
+from ..core.errors import InputError
 from .base import Geometry
 
 __all__ = ["BivariateTable", "BINS_H", "BINS_D", "PHI_D"]

@@ -10,7 +10,7 @@ global in m, which a local Levenberg-Marquardt from a Lambertian start is not.
 
 import numpy as np
 
-from ..golden import golden_section
+from ..core.golden import golden_section
 from .base import Geometry, ReflectanceModel, register_model
 
 __all__ = ["LambertSpecular", "CookTorrance", "ROUGHNESS_RANGE"]

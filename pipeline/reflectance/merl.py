@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ImageFileError
-from ..atomic import atomic_write_bytes
+from ..core.errors import ImageFileError
+from ..core.atomic import atomic_write_bytes
 
 __all__ = ["MerlBrdf", "read_merl", "write_merl", "MERL_SHAPE", "MERL_SCALE", "rusinkiewicz_angles"]
 

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_write_text
-from ..errors import InputError
-from ..imageio import write_image, write_mask
+from ..core.atomic import atomic_write_text
+from ..core.errors import InputError
+from ..core.imageio import write_image, write_mask
 from ..photometric.stage import PAPER_NAMES
 from .model import MATERIAL, read_model, shade
 

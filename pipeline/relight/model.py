@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
-from ..imageio import read_image, read_mask
-from ..paths import ALBEDO, NORMALS, NORMALS_MASK
+from ..core.errors import InputError
+from ..core.imageio import read_image, read_mask
+from ..core.paths import ALBEDO, NORMALS, NORMALS_MASK
 
 __all__ = ["FittedModel", "read_model", "shade", "MODES", "MATERIAL", "BRDF", "CONVERTED"]
 

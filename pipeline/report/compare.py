@@ -11,12 +11,12 @@ line per session. The folder is self-contained (copies of the pictures) and open
 
 from pathlib import Path
 
-from ..atomic import atomic_write_text
-from ..errors import InputError
+from ..core.atomic import atomic_write_text
+from ..core.errors import InputError
 from ..evaluate import ERROR_TOP_DEG, evaluate_session
-from ..imageio import write_image
+from ..core.imageio import write_image
 from ..photometric import share_text
-from ..session import now_iso
+from ..core.session import now_iso
 from . import html, sections
 from .details import flatten, format_value, settings_used
 from .maps import bar_figures, choose_scales, map_figures, read_maps

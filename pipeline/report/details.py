@@ -49,7 +49,7 @@ def flatten(data, prefix=""):
     return rows
 
 
-#: a sphere mask stored at import (pipeline.paths.SPHERE_MASK), which calibrate uses unasked
+#: a sphere mask stored at import (pipeline.core.paths.SPHERE_MASK), which calibrate uses unasked
 _STORED_SPHERE_MASK = "calibration/sphere_mask.png"
 
 

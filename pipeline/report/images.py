@@ -2,7 +2,7 @@
 colour bars, and the status map in the one status palette (8-bit RGB).
 
 All functions take float arrays in the pipeline's conventions and return (h, w, 3) uint8 arrays
-ready for :func:`pipeline.imageio.write_image` with ``bits=8``.
+ready for :func:`pipeline.core.imageio.write_image` with ``bits=8``.
 """
 
 import warnings
@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..gamma import encode_gamma
+from ..core.gamma import encode_gamma
 
 __all__ = ["shrink", "srgb8", "tone_map", "normals_rgb", "colour_map", "colour_bar", "status_rgb",
            "status_legend", "robust_max", "Scale"]

@@ -44,7 +44,7 @@ def hemisphere_svg(lights, truth=None):
 
     Parameters
     ----------
-    lights : pipeline.lightsio.LightSet
+    lights : pipeline.core.lightsio.LightSet
     truth : ndarray (K, 3), optional
         True directions, drawn as hollow rings.
     """

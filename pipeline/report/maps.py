@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..evaluate import ERROR_TOP_DEG, normal_errors
-from ..imageio import read_image, read_image_native, read_mask
-from ..paths import (ALBEDO, DEPTH, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, RESIDUAL, SHADED, STATUS_MAP,
+from ..core.imageio import read_image, read_image_native, read_mask
+from ..core.paths import (ALBEDO, DEPTH, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, RESIDUAL, SHADED, STATUS_MAP,
                      UNCERTAINTY)
 from ..photometric import share_text
 from .images import Scale, colour_bar, colour_map, normals_rgb, robust_max, status_legend, status_rgb, tone_map

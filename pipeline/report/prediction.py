@@ -10,9 +10,9 @@ import html as _html
 
 import numpy as np
 
-from ..errors import InputError
-from ..imageio import read_image
-from ..paths import PREDICTION_IMAGES
+from ..core.errors import InputError
+from ..core.imageio import read_image
+from ..core.paths import PREDICTION_IMAGES
 from ..photometric.prediction import prediction_line, read_prediction
 from . import html
 from .charts import SERIES_COLOURS, Chart

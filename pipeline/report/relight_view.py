@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_write_text
+from ..core.atomic import atomic_write_text
 from ..relight import shade
 from .images import robust_max
 

@@ -5,10 +5,10 @@ written through ``write(rel, rgb)``. :func:`session_sections` assembles them.
 """
 
 from ..evaluate import lights_imported
-from ..lightsio import read_lights, read_lights_yaml
-from ..paths import LIGHTS
+from ..core.lightsio import read_lights, read_lights_yaml
+from ..core.paths import LIGHTS
 from ..photometric.uncertainty import agreement_text
-from ..session import STAGES
+from ..core.session import STAGES
 from .charts import error_by_observations, error_histogram
 from .details import flatten, format_value, record_rows, settings_used, stage_warnings
 from .html import details, escape, table

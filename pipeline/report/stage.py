@@ -19,13 +19,13 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ..atomic import atomic_write_text
-from ..errors import StageError
+from ..core.atomic import atomic_write_text
+from ..core.errors import StageError
 from ..evaluate import ERROR_TOP_DEG
-from ..imageio import read_image, read_workers, write_image
-from ..paths import (ALBEDO, DEPTH, LIGHTS, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, PREDICTION,
+from ..core.imageio import read_image, read_workers, write_image
+from ..core.paths import (ALBEDO, DEPTH, LIGHTS, LIT_OBSERVATIONS, NORMALS, NORMALS_MASK, OBSERVATIONS, PREDICTION,
                      PREDICTION_IMAGES, REPORT, RESIDUAL, SHADED, STATUS_MAP, UNCERTAINTY)
-from ..session import STAGES, now_iso
+from ..core.session import STAGES, now_iso
 from ..settings.report import ReportOptions
 from ..core.stage import Stage
 from . import html, sections
@@ -238,7 +238,7 @@ def _page(session, scores, max_deg, write):
 def _relighting(session, lights):
     """The relighting view's HTML and its scripts (a paragraph and none when the model cannot
     be read)."""
-    from ..errors import InputError
+    from ..core.errors import InputError
     from ..relight import read_model
 
     try:

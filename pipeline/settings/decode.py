@@ -3,7 +3,7 @@
 
 from dataclasses import dataclass
 
-from ..errors import InputError
+from ..core.errors import InputError
 from ..core.options import Options, option
 
 __all__ = ["DecodeOptions", "COMPRESSIONS", "parse_gamma_text"]
@@ -14,7 +14,7 @@ COMPRESSIONS = ("auto", "zip", "none")
 
 def parse_gamma_text(text):
     """``--gamma``'s text: 'auto', 'srgb', 'linear' or an exponent."""
-    from ..gamma import parse_gamma   # numpy: only when a value is parsed
+    from ..core.gamma import parse_gamma   # numpy: only when a value is parsed
 
     try:
         return parse_gamma(text)

@@ -10,7 +10,7 @@ The measurements behind each default: docs/photometric-stereo.md.
 
 from dataclasses import dataclass
 
-from ..errors import InputError
+from ..core.errors import InputError
 from ..core.options import Options, option
 
 __all__ = ["SelectionOptions", "EstimateOptions", "BiquadraticOptions", "AlternationOptions", "NormalsOptions",

@@ -50,7 +50,7 @@ import zlib
 
 import numpy as np
 
-from pipeline.atomic import atomic_write_text
+from pipeline.core.atomic import atomic_write_text
 from rig.camera import PtpCamera
 from rig.config import ConfigError
 from rig.drivers import make_light_controller

@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.dng import cfa_indices, write_dng
-from pipeline.errors import InputError
-from pipeline.imageio import write_image, write_mask, write_normal_png
-from pipeline.lightsio import LightSet, write_lights_yaml
+from pipeline.core.dng import cfa_indices, write_dng
+from pipeline.core.errors import InputError
+from pipeline.core.imageio import write_image, write_mask, write_normal_png
+from pipeline.core.lightsio import LightSet, write_lights_yaml
 
 from . import materials, shapes
 
@@ -386,7 +386,7 @@ class Scene:
         return self.dng_from_mosaic(self.render_mosaic(light, ambient=ambient, shot=shot))
 
     def dng_from_mosaic(self, mosaic):
-        """Encode a mosaic from :meth:`render_mosaic` as DNG bytes (pipeline.dng)."""
+        """Encode a mosaic from :meth:`render_mosaic` as DNG bytes (pipeline.core.dng)."""
         s = self.sensor
         return write_dng(mosaic, cfa=s.cfa, black_level=s.black, white_level=s.white)
 

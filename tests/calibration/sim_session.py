@@ -3,8 +3,8 @@ and a matte white one), with raw DNG frames and either decoded or directly rende
 
 import numpy as np
 
-from pipeline.imageio import write_image, write_mask
-from pipeline.session import Session
+from pipeline.core.imageio import write_image, write_mask
+from pipeline.core.session import Session
 from rig.sim.scene import Scene
 
 __all__ = ["sphere_scene", "make_sphere_session", "linear_frames"]

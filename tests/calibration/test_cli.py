@@ -5,9 +5,9 @@ import pytest
 import yaml
 
 from pipeline.cli import main
-from pipeline.imageio import read_image
-from pipeline.lightsio import read_lp
-from pipeline.session import Session
+from pipeline.core.imageio import read_image
+from pipeline.core.lightsio import read_lp
+from pipeline.core.session import Session
 from rig.sim.scene import Scene
 from tests.calibration.sim_session import make_sphere_session, sphere_scene
 
@@ -103,7 +103,7 @@ def test_calibrate_from_another_session_reuses_its_lights_with_its_hash(tmp_path
     session = Session.open(tmp_path / "obj")
     record = session.stage("calibrate")
     source = (tmp_path / "cal" / "calibration" / "lights.yaml")
-    from pipeline.session import file_sha256
+    from pipeline.core.session import file_sha256
 
     assert record["params"]["from_session_sha256"] == file_sha256(source)
     assert _yaml(session)["directions"] == _yaml(Session.open(tmp_path / "cal"))["directions"]
@@ -150,7 +150,7 @@ def _sphere_mask(path, scene):
     mask = np.zeros((240, 320), bool)
     for cx, cy, r in scene.circles:
         mask |= np.hypot(xx - cx, yy - cy) <= r
-    from pipeline.imageio import write_mask
+    from pipeline.core.imageio import write_mask
 
     write_mask(path, mask)
     return mask

@@ -4,10 +4,10 @@
 import pytest
 
 from pipeline.cli import main
-from pipeline.errors import InputError
-from pipeline.lightsio import read_exclude, read_lights_yaml
-from pipeline.session import Session
-from pipeline.yamlio import dump_yaml, load_yaml
+from pipeline.core.errors import InputError
+from pipeline.core.lightsio import read_exclude, read_lights_yaml
+from pipeline.core.session import Session
+from pipeline.core.yamlio import dump_yaml, load_yaml
 from rig.sim.scene import Scene
 
 from tests.calibration.sim_session import SHAPE, make_sphere_session, sphere_scene

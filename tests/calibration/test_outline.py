@@ -6,9 +6,9 @@ import yaml
 
 from calibration.sphere import calibrate_lights, calibrate_sphere
 from pipeline.cli import main
-from pipeline.errors import InputError
-from pipeline.imageio import write_image
-from pipeline.session import Session, file_sha256
+from pipeline.core.errors import InputError
+from pipeline.core.imageio import write_image
+from pipeline.core.session import Session, file_sha256
 from tests.calibration.render import render_chrome
 from tests.calibration.sim_session import linear_frames, make_sphere_session, sphere_scene
 

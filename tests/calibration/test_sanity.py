@@ -6,7 +6,7 @@ import pytest
 from calibration.circle import Circle, circle_from_mask
 from calibration.sanity import check_given_circle, check_highlights_inside, check_mask_disc
 from calibration.sphere import calibrate_sphere
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
 
 from .render import render_chrome
 from .test_sphere import _lights

@@ -6,10 +6,10 @@ import yaml
 
 from calibration.sphere import calibrate_sphere
 from pipeline.cli import main
-from pipeline.gamma import encode_gamma
-from pipeline.errors import InputError
-from pipeline.imageio import read_image, write_image
-from pipeline.session import Session
+from pipeline.core.gamma import encode_gamma
+from pipeline.core.errors import InputError
+from pipeline.core.imageio import read_image, write_image
+from pipeline.core.session import Session
 from tests.calibration.sim_session import linear_frames, sphere_scene
 
 

@@ -6,9 +6,9 @@ import re
 
 import pytest
 
-from pipeline.brackets import format_seconds, reference_shutter, shutter_seconds
-from pipeline.errors import ManifestError
-from pipeline.session import Session, validate_manifest
+from pipeline.core.brackets import format_seconds, reference_shutter, shutter_seconds
+from pipeline.core.errors import ManifestError
+from pipeline.core.session import Session, validate_manifest
 
 SHA = "0" * 64
 

@@ -10,8 +10,8 @@ import pytest
 import yaml
 
 from pipeline.cli import main
-from pipeline.imageio import write_image
-from pipeline.session import Session
+from pipeline.core.imageio import write_image
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import lights, make_session
 
 REPO = Path(__file__).resolve().parents[2]

@@ -22,7 +22,7 @@ def test_help_and_a_typo_answer_without_a_traceback():
 
 def test_the_run_command_spells_the_stages_as_the_session_does():
     from pipeline.cli.run import STAGES
-    from pipeline.session import STAGES as SESSION_STAGES
+    from pipeline.core.session import STAGES as SESSION_STAGES
 
     assert STAGES == SESSION_STAGES
 

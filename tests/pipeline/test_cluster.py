@@ -19,11 +19,11 @@ import cloudpickle  # noqa: E402  (installed with distributed)
 from pipeline import cluster, runner  # noqa: E402
 from pipeline.photometric import tiles as cluster_tiles  # noqa: E402
 from pipeline.cli import main  # noqa: E402
-from pipeline.imageio import write_image, write_mask  # noqa: E402
+from pipeline.core.imageio import write_image, write_mask  # noqa: E402
 from pipeline.importers import import_images  # noqa: E402
-from pipeline.errors import InputError, StageError  # noqa: E402
+from pipeline.core.errors import InputError, StageError  # noqa: E402
 from pipeline.photometric import normals_session  # noqa: E402
-from pipeline.session import Session  # noqa: E402
+from pipeline.core.session import Session  # noqa: E402
 from tests.pipeline.tiny_session import sphere  # noqa: E402
 
 # the kill hook below is defined here; workers cannot import this test module by name
@@ -379,7 +379,7 @@ def test_batch_corrects_lights_like_the_serial_run(tmp_path, client, monkeypatch
 
 def make_near_session(folder, name):
     """The glossy hemisphere session with light positions 300 px away in its lights.yaml."""
-    from pipeline.lightsio import LightSet, read_lights_yaml, write_lights_yaml
+    from pipeline.core.lightsio import LightSet, read_lights_yaml, write_lights_yaml
 
     root = make_session(folder, name, 72)
     path = Session.open(root).path("calibration/lights.yaml")

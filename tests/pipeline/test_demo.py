@@ -9,9 +9,9 @@ import pytest
 
 from pipeline.cli import main
 from pipeline.demo import DEMO_MARK, prepare_folder
-from pipeline.errors import SessionError
-from pipeline.imageio import read_image
-from pipeline.session import Session
+from pipeline.core.errors import SessionError
+from pipeline.core.imageio import read_image
+from pipeline.core.session import Session
 
 
 def test_prepare_folder_accepts_new_or_empty(tmp_path):

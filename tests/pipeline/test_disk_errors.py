@@ -8,9 +8,9 @@ import os
 
 import pytest
 
-from pipeline import atomic
+from pipeline.core import atomic
 from pipeline.cli import main
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import make_session
 
 

@@ -1,4 +1,4 @@
-"""pipeline.dng: DNGs written here must open in rawpy with the values we wrote."""
+"""pipeline.core.dng: DNGs written here must open in rawpy with the values we wrote."""
 
 import io
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import rawpy
 
-from pipeline.dng import CFA_ORDERS, cfa_indices, write_dng, write_dng_file
-from pipeline.errors import InputError
+from pipeline.core.dng import CFA_ORDERS, cfa_indices, write_dng, write_dng_file
+from pipeline.core.errors import InputError
 
 # rawpy colour indices: 0 R, 1 G, 2 B, 3 second G
 _LETTERS = {0: "R", 1: "G", 2: "B", 3: "G"}

@@ -8,9 +8,9 @@ import yaml
 
 from pipeline.cli import main
 from pipeline.evaluate import angular_error, depth_error, error_stats, evaluate_session, light_errors
-from pipeline.imageio import read_image, write_image, write_mask
-from pipeline.lightsio import LightSet, write_lights_yaml
-from pipeline.session import Session
+from pipeline.core.imageio import read_image, write_image, write_mask
+from pipeline.core.lightsio import LightSet, write_lights_yaml
+from pipeline.core.session import Session
 
 
 def rotate_x(vectors, degrees):

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
-from pipeline.imageio import read_image, read_mask
+from pipeline.core.imageio import read_image, read_mask
 from pipeline.relight import read_model, shade
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import make_session
 
 

@@ -1,10 +1,10 @@
 import numpy as np
 import pytest
 
-from pipeline.errors import ImageFileError, InputError
-from pipeline.imageio import (image_size, read_image, read_image_native, read_mask, read_normal_png,
+from pipeline.core.errors import ImageFileError, InputError
+from pipeline.core.imageio import (image_size, read_image, read_image_native, read_mask, read_normal_png,
                               write_image, write_mask, write_normal_png)
-from pipeline.lightsio import LightSet, read_lights, read_lights_yaml, read_lp, write_lights_yaml, write_lp
+from pipeline.core.lightsio import LightSet, read_lights, read_lights_yaml, read_lp, write_lights_yaml, write_lp
 
 
 @pytest.mark.parametrize("name, bits, tol", [("a.exr", None, 0), ("a.png", 16, 1 / 65535), ("a.tif", 16, 1 / 65535),

@@ -1,9 +1,9 @@
-"""pipeline.jit: how kernels run (the compiled kernels' own tests are beside each kernel)."""
+"""pipeline.core.jit: how kernels run (the compiled kernels' own tests are beside each kernel)."""
 
 import numpy as np
 import pytest
 
-from pipeline.jit import single_threaded
+from pipeline.core.jit import single_threaded
 
 threadpoolctl = pytest.importorskip("threadpoolctl")
 
@@ -26,7 +26,7 @@ def test_single_threaded_looks_again_after_an_import(monkeypatch):
     # the cached controller is kept while no module is imported, and replaced after one
     import sys
 
-    from pipeline import jit
+    from pipeline.core import jit
 
     with single_threaded():
         pass
@@ -52,7 +52,7 @@ def _slow_build(seconds):
 @pytest.mark.parametrize("mode", ["lines", "bar"])
 def test_a_long_compilation_says_so_while_it_runs(monkeypatch, capsys, mode):
     # a first run compiles for ~15 s while no progress moves: it says why it waits, and when done
-    from pipeline import jit
+    from pipeline.core import jit
 
     monkeypatch.setattr(jit, "NOTICE_SECONDS", 0.05)
     monkeypatch.setenv("PSRIG_PROGRESS", mode)
@@ -64,7 +64,7 @@ def test_a_long_compilation_says_so_while_it_runs(monkeypatch, capsys, mode):
 
 @pytest.mark.parametrize("mode, build", [("lines", _slow_build(0.0)), ("off", _slow_build(0.4))])
 def test_a_load_from_the_cache_or_a_quiet_run_says_nothing(monkeypatch, capsys, mode, build):
-    from pipeline import jit
+    from pipeline.core import jit
 
     monkeypatch.setattr(jit, "NOTICE_SECONDS", 0.2 if mode == "lines" else 0.05)
     monkeypatch.setenv("PSRIG_PROGRESS", mode)

@@ -11,16 +11,16 @@ from pathlib import Path
 
 import pytest
 
-from pipeline import lock
+from pipeline.core import lock
 from pipeline.cli import main
-from pipeline.lock import SessionLocked
-from pipeline.session import Session
+from pipeline.core.lock import SessionLocked
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import make_session
 
 REPO = Path(__file__).resolve().parents[2]
 # takes a session's lock like a command would, says so in a file, then holds it
 HOLDER = ("import sys, time\n"
-          "from pipeline.session import Session\n"
+          "from pipeline.core.session import Session\n"
           "s = Session.open(sys.argv[1], writer=sys.argv[2])\n"
           "open(sys.argv[3] + '.tmp', 'w').write(s.lock.token)\n"
           "import os; os.replace(sys.argv[3] + '.tmp', sys.argv[3])\n"

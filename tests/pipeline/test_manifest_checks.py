@@ -7,8 +7,8 @@ import pytest
 import yaml
 
 from pipeline.cli import main
-from pipeline.errors import ManifestError
-from pipeline.session import Session
+from pipeline.core.errors import ManifestError
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import make_session
 
 

@@ -7,9 +7,9 @@ import os
 
 import pytest
 
-from pipeline.atomic import atomic_write_text, is_temp_name
+from pipeline.core.atomic import atomic_write_text, is_temp_name
 from pipeline.cli import main
-from pipeline.errors import SessionError
+from pipeline.core.errors import SessionError
 from tests.pipeline.tiny_session import make_session
 
 

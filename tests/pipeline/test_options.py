@@ -5,10 +5,10 @@ import pytest
 
 from pipeline import runner
 from pipeline.cli import main
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
 from pipeline.photometric import estimate_normals
 from pipeline.photometric.methods import METHODS, check_method_options, method_traits
-from pipeline.session import Session
+from pipeline.core.session import Session
 from pipeline.settings import BiquadraticOptions, NormalsOptions, SelectionOptions
 from tests.pipeline.tiny_session import make_session
 

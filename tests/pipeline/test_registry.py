@@ -1,7 +1,7 @@
 import pytest
 
-from pipeline.errors import InputError
-from pipeline.registry import Registry
+from pipeline.core.errors import InputError
+from pipeline.core.registry import Registry
 
 
 def test_lookup_names_the_known_choices():

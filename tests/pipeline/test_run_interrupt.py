@@ -7,7 +7,7 @@ import signal
 
 import pytest
 
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.decode.test_interrupt import decoded, psrig, raw_session, wait_for
 
 

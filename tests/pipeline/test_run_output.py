@@ -5,10 +5,10 @@ import json
 
 import pytest
 
-from pipeline import progress as progress_module
+from pipeline.core import progress as progress_module
 from pipeline import runner
 from pipeline.cli import main
-from pipeline.progress import LineProgress, progress, progress_mode
+from pipeline.core.progress import LineProgress, progress, progress_mode
 from tests.calibration.sim_session import make_sphere_session, sphere_scene
 from tests.pipeline.tiny_session import lambert_stage, make_session
 
@@ -68,7 +68,7 @@ def test_json_reports_a_failed_session_without_stopping_the_others(tiny, tmp_pat
 
 
 def test_verbose_adds_settings_outputs_and_status_shares(tiny, capsys):
-    from pipeline.session import Session
+    from pipeline.core.session import Session
 
     assert main(["run", str(tiny.root), "--to", "integrate"]) == 0
     session = Session.open(tiny.root)

@@ -11,7 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import make_session
 
 REPO = Path(__file__).resolve().parents[2]

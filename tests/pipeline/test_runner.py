@@ -4,8 +4,8 @@ import pytest
 
 from pipeline import runner
 from pipeline.cli import main
-from pipeline.errors import StageError
-from pipeline.session import STAGES, Session
+from pipeline.core.errors import StageError
+from pipeline.core.session import STAGES, Session
 from tests.pipeline.tiny_session import lambert_stage, make_session
 
 
@@ -145,7 +145,7 @@ def test_the_sweep_note_names_the_session_once(tmp_path, stubbed, capsys):
 
 
 def test_an_empty_mask_in_a_session_is_named(tmp_path, capsys):
-    from pipeline.imageio import read_mask, write_mask
+    from pipeline.core.imageio import read_mask, write_mask
 
     root = make_session(tmp_path).root
     session = Session.open(root)

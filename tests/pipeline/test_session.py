@@ -5,8 +5,8 @@ import sys
 import pytest
 import yaml
 
-from pipeline.errors import ManifestError, SessionError
-from pipeline.session import FORMAT, Session, file_sha256
+from pipeline.core.errors import ManifestError, SessionError
+from pipeline.core.session import FORMAT, Session, file_sha256
 
 
 @pytest.fixture
@@ -120,7 +120,7 @@ def test_manifest_survives_a_kill_during_saves(tmp_path):
     root = tmp_path / "s"
     Session.create(root)
     script = (
-        "import sys\nfrom pipeline.session import Session\n"
+        "import sys\nfrom pipeline.core.session import Session\n"
         "s = Session.open(sys.argv[1])\n"
         "for i in range(100000):\n"
         "    s.add_frame('object', bytes(2000) + str(i).encode(), light=len(s.frames()))\n"

@@ -5,8 +5,8 @@ import numpy as np
 import yaml
 
 from pipeline.cli import main
-from pipeline.imageio import read_image
-from pipeline.session import Session
+from pipeline.core.imageio import read_image
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import make_session
 
 

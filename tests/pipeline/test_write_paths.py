@@ -7,8 +7,8 @@ import pytest
 
 from pipeline.cli import main
 from pipeline.decode import decode_session
-from pipeline.errors import SessionError
-from pipeline.session import Session
+from pipeline.core.errors import SessionError
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import make_session
 
 OUTPUTS = ("linear", "calibration", "normals", "depth", "report")

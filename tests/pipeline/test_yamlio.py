@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline.errors import InputError
-from pipeline.lightsio import LightSet, read_lights_yaml, write_lights_yaml
-from pipeline.yamlio import MAX_EXPANSION, AliasRefused, YamlTooLarge, dump_yaml, load_yaml
+from pipeline.core.errors import InputError
+from pipeline.core.lightsio import LightSet, read_lights_yaml, write_lights_yaml
+from pipeline.core.yamlio import MAX_EXPANSION, AliasRefused, YamlTooLarge, dump_yaml, load_yaml
 
 
 def bomb(levels, fan=9):
@@ -40,7 +40,7 @@ def test_anchors_that_share_a_part_of_a_file_are_read():
 
 
 def test_text_beyond_the_size_bound_is_refused(monkeypatch):
-    monkeypatch.setattr("pipeline.yamlio.MAX_YAML_BYTES", 100)
+    monkeypatch.setattr("pipeline.core.yamlio.MAX_YAML_BYTES", 100)
     with pytest.raises(YamlTooLarge):
         load_yaml("a: " + "x" * 200)
 

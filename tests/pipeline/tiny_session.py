@@ -6,9 +6,9 @@ import time
 
 import numpy as np
 
-from pipeline.imageio import read_image, read_mask, write_image, write_mask, write_normal_png
+from pipeline.core.imageio import read_image, read_mask, write_image, write_mask, write_normal_png
 from pipeline.importers import import_images
-from pipeline.lightsio import read_lights
+from pipeline.core.lightsio import read_lights
 
 SIZE = 40
 

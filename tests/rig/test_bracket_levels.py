@@ -5,7 +5,7 @@ import pytest
 import tifffile
 import yaml
 
-from pipeline.session import Session
+from pipeline.core.session import Session
 from rig.capture import CaptureError, capture_session
 from rig.config import ConfigError, get_rig, load_rigs
 from rig.sim.rig import SimulatedRig

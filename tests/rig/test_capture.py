@@ -13,8 +13,8 @@ import pytest
 import yaml
 
 from pipeline.cli import main
-from pipeline.errors import SessionError
-from pipeline.session import Session
+from pipeline.core.errors import SessionError
+from pipeline.core.session import Session
 from rig.capture import PARTIAL, CaptureError, CaptureInterrupted, capture_session, check_raw_file, plan_frames
 from rig.config import ConfigError, get_rig
 from rig.sim.rig import SimulatedRig, parse_faults, split_faults
@@ -380,7 +380,7 @@ def test_hardware_path_asks_for_the_sphere(tmp_path, monkeypatch, bench_rig):
 
 
 def test_session_without_sphere_frames_is_processed_with_the_nominal_lights(tmp_path, rig8):
-    from pipeline.lightsio import read_lights
+    from pipeline.core.lightsio import read_lights
     from pipeline.runner import run_session
 
     session = capture_session(tmp_path / "s", rig8, sphere=False, **QUIET)
@@ -399,7 +399,7 @@ def test_calibrate_takes_the_nominal_lights_as_run_does(tmp_path, rig8):
     # rig's nominal lights, said as such (calibrate refused them, and called them imported once
     # run had written them)
     from calibration import calibrate_session
-    from pipeline.lightsio import read_lights
+    from pipeline.core.lightsio import read_lights
 
     session = capture_session(tmp_path / "s", rig8, sphere=False, **QUIET)
     said = []

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import yaml
 
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.rig.test_capture import RIGS
 
 REPO = Path(__file__).resolve().parents[2]

@@ -6,7 +6,7 @@ import yaml
 
 from calibration.stage import calibrate_session
 from pipeline.decode import decode_session
-from pipeline.session import Session
+from pipeline.core.session import Session
 from rig.capture import OUTLINE_PROMPT, CaptureError, capture_session, plan_frames
 from rig.config import ConfigError, get_rig
 

@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from pipeline.cli import main
-from pipeline.lightsio import write_lp
+from pipeline.core.lightsio import write_lp
 from rig.config import (ConfigError, RigConfig, default_rig_name, find_rigs_file, get_rig,
                         load_rigs, ring_directions)
 from rig.drivers import make_light_controller

@@ -153,7 +153,7 @@ def test_the_camera_file_name_never_reaches_the_filesystem(small_rig, tmp_path, 
 
 
 def test_raw_types_from_content():
-    from pipeline.dng import write_dng
+    from pipeline.core.dng import write_dng
     import numpy as np
 
     dng = write_dng(np.zeros((32, 32), np.uint16))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from pipeline.session import Session
+from pipeline.core.session import Session
 from rig import exposure as exposure_values, ptp
 from rig.camera import CameraConfigError, CameraExposureError, PtpCamera, choose_value
 from rig.capture import CaptureError, capture_session

@@ -3,7 +3,7 @@
 import pytest
 
 from pipeline.cli import main
-from pipeline.imageio import read_image
+from pipeline.core.imageio import read_image
 
 RIGS = """
 rigs:

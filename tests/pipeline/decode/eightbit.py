@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.gamma import encode_gamma
+from pipeline.core.gamma import encode_gamma
 
 from tests import SHARED_DATA
 

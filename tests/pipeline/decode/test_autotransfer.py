@@ -6,8 +6,8 @@ import pytest
 
 from pipeline.cli import main
 from pipeline.decode.autotransfer import decide
-from pipeline.imageio import read_image
-from pipeline.session import Session
+from pipeline.core.imageio import read_image
+from pipeline.core.session import Session
 
 from tests.pipeline.decode.eightbit import DILIGENT, PSBOX, write_eightbit_diligent, write_eightbit_psbox
 
@@ -97,7 +97,7 @@ def test_psbox_objects_as_shipped_read_as_linear(tmp_path, capsys):
 @needs_data
 def test_the_ambient_frame_decode_subtracts_is_in_the_model(tmp_path):
     from pipeline.decode.autotransfer import decide_transfer
-    from pipeline.imageio import write_image as write
+    from pipeline.core.imageio import write_image as write
 
     frames = write_eightbit_diligent("ball", "linear", tmp_path / "f", lights=slice(None, None, 3))
     ambient = tmp_path / "ambient.png"

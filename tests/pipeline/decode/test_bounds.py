@@ -9,9 +9,9 @@ import tifffile
 from pipeline.cli import main
 from pipeline.decode import raw as decode_raw_module
 from pipeline.decode.frame import frame_size
-from pipeline.dng import write_dng
-from pipeline.errors import ImageFileError
-from pipeline.session import Session
+from pipeline.core.dng import write_dng
+from pipeline.core.errors import ImageFileError
+from pipeline.core.session import Session
 
 
 def lying_dng(width, height, shape=(64, 96)):

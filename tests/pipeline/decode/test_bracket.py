@@ -12,8 +12,8 @@ import yaml
 
 from pipeline.cli import main
 from pipeline.decode import decode_frame
-from pipeline.imageio import read_image, read_mask
-from pipeline.session import Session, file_sha256
+from pipeline.core.imageio import read_image, read_mask
+from pipeline.core.session import Session, file_sha256
 from rig.capture import CaptureError, capture_session
 from rig.config import get_rig
 from rig.sim.rig import SimulatedRig

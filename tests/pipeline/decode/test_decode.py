@@ -7,10 +7,10 @@ import pytest
 
 from pipeline.cli import main
 from pipeline.decode import decode_frame, decode_session
-from pipeline.dng import CFA_ORDERS, cfa_indices, write_dng, write_dng_file
-from pipeline.errors import SessionError, StageError
-from pipeline.imageio import read_image, read_mask, write_image
-from pipeline.session import Session
+from pipeline.core.dng import CFA_ORDERS, cfa_indices, write_dng, write_dng_file
+from pipeline.core.errors import SessionError, StageError
+from pipeline.core.imageio import read_image, read_mask, write_image
+from pipeline.core.session import Session
 
 from tests import SHARED_DATA
 

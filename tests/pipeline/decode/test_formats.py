@@ -11,10 +11,10 @@ import pytest
 
 from pipeline.cli import main
 from pipeline.decode import decode_frame, decode_session, frame_format
-from pipeline.dng import XTRANS, write_dng_file, write_linear_dng
-from pipeline.errors import ImageFileError
-from pipeline.gamma import encode_gamma, inverse_gamma_lut
-from pipeline.session import Session
+from pipeline.core.dng import XTRANS, write_dng_file, write_linear_dng
+from pipeline.core.errors import ImageFileError
+from pipeline.core.gamma import encode_gamma, inverse_gamma_lut
+from pipeline.core.session import Session
 
 WHITE, BLACK = 16383, 512
 

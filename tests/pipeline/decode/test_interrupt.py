@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.dng import write_dng
-from pipeline.imageio import read_image
-from pipeline.session import Session
+from pipeline.core.dng import write_dng
+from pipeline.core.imageio import read_image
+from pipeline.core.session import Session
 
 REPO = Path(__file__).resolve().parents[3]
 FRAMES = 24
@@ -259,11 +259,11 @@ def test_a_bracketed_decode_killed_mid_way_resumes_from_the_merges_done(tmp_path
 
 def test_a_ctrl_c_inside_a_commit_is_held_until_it_is_reported(sigint_raises):
     # the bookkeeping of a committed frame runs to its end; the Ctrl-C is raised right after
-    from pipeline.decode.pool import _deferred_interrupt
+    from pipeline.decode.pool import deferred_interrupt
 
     steps = []
     with pytest.raises(KeyboardInterrupt):
-        with _deferred_interrupt():
+        with deferred_interrupt():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.05)   # the signal is delivered here, and held
             steps.append("reported")

@@ -10,7 +10,7 @@ import time
 import pytest
 
 from pipeline.decode import stage as decode_stage
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.decode.test_interrupt import psrig, raw_session
 
 

@@ -4,9 +4,9 @@ the frame check's rescaled frames are listed farthest first."""
 import numpy as np
 
 from pipeline.cli import main
-from pipeline.imageio import write_image
+from pipeline.core.imageio import write_image
 from pipeline.photometric.summary import _gain_warnings
-from pipeline.session import Session
+from pipeline.core.session import Session
 
 from tests.pipeline.tiny_session import lights
 

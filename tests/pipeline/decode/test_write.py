@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 
 from pipeline.decode import pool as decode_pool
-from pipeline.atomic import atomic_commit, atomic_write_begin, discard_temp
+from pipeline.core.atomic import atomic_commit, atomic_write_begin, discard_temp
 from pipeline.decode import decode_session
 from pipeline.decode.exr import ExrBuffer
 from pipeline.decode.raw import decode_raw
-from pipeline.dng import write_dng, write_dng_file
-from pipeline.imageio import read_image, read_image_native, read_mask, write_image
-from pipeline.session import Session, file_sha256
+from pipeline.core.dng import write_dng, write_dng_file
+from pipeline.core.imageio import read_image, read_image_native, read_mask, write_image
+from pipeline.core.session import Session, file_sha256
 
 
 @pytest.mark.parametrize("shape, names", [((5, 7), ("R", "G", "B")), ((3, 1), ("Y",)),

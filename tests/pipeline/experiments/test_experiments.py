@@ -103,7 +103,7 @@ def test_reflectometry_simulated_ranks_the_models(tmp_path):
 
 
 def test_reflectometry_on_a_user_image(tmp_path):
-    from pipeline.imageio import write_image
+    from pipeline.core.imageio import write_image
 
     material, _ = refl.parse_material("ward:0.5")
     image, _, _ = refl.simulate_sphere(material, (0.2, 0.1, 0.97), size=40)

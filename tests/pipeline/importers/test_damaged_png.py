@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
-from pipeline.imageio import write_image
+from pipeline.core.imageio import write_image
 
 
 @pytest.fixture

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
-from pipeline.errors import InputError
-from pipeline.imageio import read_mask, write_image, write_mask
+from pipeline.core.errors import InputError
+from pipeline.core.imageio import read_mask, write_image, write_mask
 from pipeline.importers import import_images, import_notes
-from pipeline.lightsio import read_lights
-from pipeline.session import Session
+from pipeline.core.lightsio import read_lights
+from pipeline.core.session import Session
 
 
 def frames(folder, names, size=(12, 16)):

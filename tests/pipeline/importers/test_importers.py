@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
-from pipeline.errors import InputError, SessionError
-from pipeline.imageio import read_image, read_mask, write_image, write_mask
+from pipeline.core.errors import InputError, SessionError
+from pipeline.core.imageio import read_image, read_mask, write_image, write_mask
 from pipeline.importers import import_diligent, import_images, natural_key
-from pipeline.lightsio import read_lights, read_lp
-from pipeline.session import Session
+from pipeline.core.lightsio import read_lights, read_lp
+from pipeline.core.session import Session
 
 from tests import SHARED_DATA
 

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
-from pipeline.imageio import write_image
-from pipeline.lightsio import read_lights
-from pipeline.yamlio import dump_yaml
+from pipeline.core.imageio import write_image
+from pipeline.core.lightsio import read_lights
+from pipeline.core.yamlio import dump_yaml
 from tests.pipeline.tiny_session import lights, sphere
 
 

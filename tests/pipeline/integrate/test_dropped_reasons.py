@@ -4,9 +4,9 @@ so that it adds up with the normals line (which warns only of statuses above the
 import numpy as np
 
 from pipeline.cli import main
-from pipeline.imageio import read_image, write_image
+from pipeline.core.imageio import read_image, write_image
 from pipeline.integrate import integrate_session
-from pipeline.session import Session
+from pipeline.core.session import Session
 
 from tests.pipeline.tiny_session import lambert_stage, make_session
 

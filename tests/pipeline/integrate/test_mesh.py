@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
-from pipeline.imageio import read_image
+from pipeline.core.errors import InputError
+from pipeline.core.imageio import read_image
 from pipeline.integrate.mesh import (depth_to_points, grid_faces, mesh_normals, shade, write_depth_mesh, write_ply,
                                     write_shaded)
 

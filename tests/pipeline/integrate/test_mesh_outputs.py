@@ -5,8 +5,8 @@ import pytest
 import yaml
 
 from pipeline.cli import main
-from pipeline.errors import InputError
-from pipeline.imageio import read_image
+from pipeline.core.errors import InputError
+from pipeline.core.imageio import read_image
 from pipeline.integrate import integrate_session
 from pipeline.integrate.mesh import build_mesh, depth_to_points, grid_faces, split_faces, write_obj
 from pipeline.integrate.stage import mesh_units

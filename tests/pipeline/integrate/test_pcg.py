@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import pipeline.integrate.pcg as pcg
-from pipeline.jit import ENV_NO_JIT, Compiled
+from pipeline.core.jit import ENV_NO_JIT, Compiled
 from pipeline.integrate.grid import assemble, build_problem
 
 

@@ -6,11 +6,11 @@ import pytest
 import yaml
 
 from pipeline.cli import main
-from pipeline.errors import InputError, StageError
-from pipeline.imageio import read_image, read_mask, read_normal_png, write_image, write_mask, write_normal_png
+from pipeline.core.errors import InputError, StageError
+from pipeline.core.imageio import read_image, read_mask, read_normal_png, write_image, write_mask, write_normal_png
 from pipeline.integrate import METHODS, integrate_normals, integrate_normals_full, integrate_session, read_intrinsics
 from pipeline.runner import run_stage
-from pipeline.session import Session
+from pipeline.core.session import Session
 
 from tests import SHARED_DATA
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-from pipeline.errors import InputError
-from pipeline.lightsio import LightSet, flag_behind, read_intensities, read_lights
+from pipeline.core.errors import InputError
+from pipeline.core.lightsio import LightSet, flag_behind, read_intensities, read_lights
 
 DIRS = np.array([[0.1, 0.2, 0.97], [-0.3, 0.1, 0.95], [0.0, -0.4, 0.92], [0.5, 0.5, 0.7], [-0.2, -0.2, 0.96]])
 UNIT = DIRS / np.linalg.norm(DIRS, axis=1, keepdims=True)

@@ -36,7 +36,7 @@ def row_angles_deg(a, b):
 def import_stack(folder, name, images, mask, lights):
     """A session ``folder/name`` imported from grey ``images`` (K, H, W) in 0..1 written as
     16-bit RGB PNGs, with the object ``mask`` and the light directions ``lights`` (K, 3)."""
-    from pipeline.imageio import write_image, write_mask
+    from pipeline.core.imageio import write_image, write_mask
     from pipeline.importers import import_images
 
     src = folder / f"{name}_src"

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
 from pipeline.photometric import estimate_normals
 from pipeline.photometric.anchor import highlight_mismatch, scale_cone
 

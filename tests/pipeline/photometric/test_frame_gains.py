@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
 from pipeline.photometric import PointLights, estimate_normals
 from pipeline.photometric.engine import gatherer
 from pipeline.photometric.frame_gains import GAIN_TOL, check_frames
@@ -120,7 +120,7 @@ def test_near_lights_are_not_checked_unless_asked_and_a_bad_mode_is_refused():
 def test_the_stage_names_the_rescaled_frame_and_can_be_told_to_trust_the_intensities(tmp_path, capsys):
     from pipeline.cli import main
     from pipeline.decode import decode_session
-    from pipeline.session import Session
+    from pipeline.core.session import Session
     from tests.pipeline.photometric.ps_synthetic import import_stack
 
     images, _, mask = scene(DOME, size=64)

@@ -5,9 +5,9 @@ object is a warning naming ``--mask``."""
 import numpy as np
 
 from pipeline.cli import main
-from pipeline.imageio import write_image
+from pipeline.core.imageio import write_image
 from pipeline.importers import import_images
-from pipeline.session import Session
+from pipeline.core.session import Session
 
 from tests.pipeline.tiny_session import lights, sphere
 

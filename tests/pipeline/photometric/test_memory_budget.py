@@ -4,9 +4,9 @@ not fit (the same normals as in memory), a clear refusal when nothing fits."""
 import numpy as np
 import pytest
 
-from pipeline import jit as memory
-from pipeline.errors import InputError, StageError
-from pipeline.paths import NORMALS
+from pipeline.core import memory
+from pipeline.core.errors import InputError, StageError
+from pipeline.core.paths import NORMALS
 from pipeline.photometric import normals_session
 from pipeline.photometric import tiles
 from pipeline.photometric.stage import normals_memory, read_workers, stack_shape, _object_frames
@@ -66,7 +66,7 @@ def test_unreadable_budgets_are_refused(text):
 def test_integrate_refuses_a_session_over_its_budget_and_records_the_budget(rgb_session):  # noqa: F811
     from pipeline.integrate import integrate_session
     from pipeline.integrate.stage import integrate_memory
-    from pipeline.imageio import read_mask
+    from pipeline.core.imageio import read_mask
 
     normals_session(rgb_session, method="lambert", show_progress=False)
     with pytest.raises(StageError, match=r"integrate: needs about [\d.]+ GB of memory, the budget is 0.00 GB .*"

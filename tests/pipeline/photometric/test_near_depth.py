@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
 from pipeline.photometric.near_depth import refine_near_depth
 from pipeline.photometric import PointLights
 from pipeline.photometric import estimate_normals
@@ -80,10 +80,10 @@ def test_a_depth_map_must_match_the_image():
 def test_normals_stage_places_near_lights_at_the_depth_and_can_be_told_not_to(tmp_path):
     from pipeline.cli import main
     from pipeline.decode import decode_session
-    from pipeline.imageio import read_image, write_image, write_mask
+    from pipeline.core.imageio import read_image, write_image, write_mask
     from pipeline.importers import import_images
-    from pipeline.lightsio import LightSet, read_lights_yaml, write_lights_yaml
-    from pipeline.session import Session
+    from pipeline.core.lightsio import LightSet, read_lights_yaml, write_lights_yaml
+    from pipeline.core.session import Session
 
     images, lights, mask, normals, _ = _raised_dome()
     src = tmp_path / "src"

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
 from pipeline.photometric import PointLights
 from pipeline.photometric import estimate_normals
 
@@ -69,9 +69,9 @@ def test_bad_point_lights_are_named():
 def test_normals_stage_uses_calibrated_positions(tmp_path):
     """A session whose lights.yaml has positions: the stage's near model beats directions."""
     from pipeline.decode import decode_session
-    from pipeline.imageio import read_image, write_image, write_mask
+    from pipeline.core.imageio import read_image, write_image, write_mask
     from pipeline.importers import import_images
-    from pipeline.lightsio import LightSet, read_lights_yaml, write_lights_yaml
+    from pipeline.core.lightsio import LightSet, read_lights_yaml, write_lights_yaml
     from pipeline.photometric import normals_session
 
     images, lights, mask, normals = _scene()

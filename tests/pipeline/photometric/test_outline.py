@@ -62,7 +62,7 @@ def test_no_verdict_without_a_silhouette():
 def test_the_stage_records_the_outline_and_warns_of_a_light_file_with_y_down(tmp_path):
     from pipeline.decode import decode_session
     from pipeline.photometric import normals_session
-    from pipeline.session import Session
+    from pipeline.core.session import Session
     from tests.pipeline.photometric.ps_synthetic import import_stack
 
     normals, mask = sphere_normals(48)

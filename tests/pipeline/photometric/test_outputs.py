@@ -5,9 +5,9 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from pipeline.imageio import read_image, write_image, write_mask
+from pipeline.core.imageio import read_image, write_image, write_mask
 from pipeline.importers import import_images
-from pipeline.paths import ALBEDO, NORMALS, OBSERVATIONS
+from pipeline.core.paths import ALBEDO, NORMALS, OBSERVATIONS
 from pipeline.photometric import STATUS, STATUS_NAMES, normals_session
 from pipeline.photometric.methods import STATUS_PALETTE
 from pipeline.photometric.stage import STATUS_COLOURS

@@ -11,7 +11,7 @@ from pipeline.experiments.synthetic import hemisphere_lights, sphere_normals
 from pipeline.photometric import normals_session
 from pipeline.photometric.prediction import (MIN_LIGHTS, held_out_prediction, light_folds, prediction_line,
                                              read_prediction, render)
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import make_session
 
 
@@ -119,7 +119,7 @@ def test_holdout_folds_zero_skips_it_and_one_is_refused(tmp_path):
     # the earlier run's files are gone: they were not of this fit
     assert read_prediction(Session.open(session.root)) is None
     assert not session.path("normals/prediction.exr").exists()
-    from pipeline.errors import StageError
+    from pipeline.core.errors import StageError
     with pytest.raises(StageError, match="holdout-folds"):
         normals_session(session, show_progress=False, holdout_folds=1, force=True)
 

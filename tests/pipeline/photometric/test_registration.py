@@ -94,10 +94,10 @@ def test_the_warning_names_the_frames_and_a_move_during_the_capture():
 def test_the_stage_records_the_moved_frames_by_id_and_warns(tmp_path, scene):
     from pipeline.decode import decode_session
     from pipeline.photometric import normals_session
-    from pipeline.session import Session
+    from pipeline.core.session import Session
     from tests.pipeline.photometric.ps_synthetic import import_stack
 
-    from pipeline.imageio import read_image
+    from pipeline.core.imageio import read_image
 
     images, mask = scene
     normals, _ = sphere_normals(96)

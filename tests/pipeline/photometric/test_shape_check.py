@@ -150,9 +150,9 @@ def two_material_session(folder, name):
 def test_tiled_stage_falls_back_as_the_serial_stage(tmp_path):
     from pipeline import runner
     from pipeline.photometric import tiles as cluster_tiles
-    from pipeline.imageio import read_image
+    from pipeline.core.imageio import read_image
     from pipeline.photometric import normals_session
-    from pipeline.session import Session
+    from pipeline.core.session import Session
 
     reference, tiled = (two_material_session(tmp_path, name) for name in ("a", "b"))
     for root in (reference, tiled):

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from pipeline.decode import decode_session
-from pipeline.errors import StageError
-from pipeline.imageio import read_image, write_image, write_mask
+from pipeline.core.errors import StageError
+from pipeline.core.imageio import read_image, write_image, write_mask
 from pipeline.importers import import_images
-from pipeline.paths import NORMALS
+from pipeline.core.paths import NORMALS
 from pipeline.photometric import normals_session
 from pipeline.photometric import stage as stage_module
 from pipeline.photometric.stage import ChannelSums, begin_normals, load_object_stack

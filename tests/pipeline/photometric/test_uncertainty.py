@@ -4,8 +4,8 @@ stage writes and says, eval's agreement, the PLY's per-vertex quality."""
 import numpy as np
 import pytest
 
-from pipeline.imageio import read_image
-from pipeline.paths import UNCERTAINTY
+from pipeline.core.imageio import read_image
+from pipeline.core.paths import UNCERTAINTY
 from pipeline.photometric import STATUS, estimate_normals, normals_session
 from pipeline.photometric.engine import normal_leverage
 from pipeline.photometric.summary import normals_summary

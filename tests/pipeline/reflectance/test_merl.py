@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from pipeline.errors import ImageFileError
+from pipeline.core.errors import ImageFileError
 from pipeline.reflectance import Geometry
 from pipeline.reflectance.merl import MERL_SHAPE, read_merl, rusinkiewicz_angles, write_merl
 

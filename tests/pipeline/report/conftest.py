@@ -3,7 +3,7 @@
 import pytest
 
 from pipeline import runner
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import lambert_stage, make_session
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
-from pipeline.imageio import read_image
+from pipeline.core.imageio import read_image
 from tests.pipeline.report.browser import chromium_path, open_page
 
 BACKGROUND = np.array([244, 244, 244])

@@ -5,9 +5,9 @@ import pytest
 
 from pipeline import runner
 from pipeline.cli import main
-from pipeline.imageio import read_image
+from pipeline.core.imageio import read_image
 from pipeline.report.compare import MARK
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import lambert_stage, make_session
 
 

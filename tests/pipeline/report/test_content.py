@@ -7,14 +7,14 @@ import re
 import numpy as np
 
 from pipeline import runner
-from pipeline.imageio import read_image, write_image
-from pipeline.lightsio import read_lights_yaml, write_lights_yaml
-from pipeline.paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, STATUS_MAP
+from pipeline.core.imageio import read_image, write_image
+from pipeline.core.lightsio import read_lights_yaml, write_lights_yaml
+from pipeline.core.paths import LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, STATUS_MAP
 from pipeline.photometric import STATUS, STATUS_NAMES
 from pipeline.photometric.methods import STATUS_PALETTE
 from pipeline.report import report_session
 from pipeline.report.images import Scale, colour_bar, colour_map
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import make_session
 
 

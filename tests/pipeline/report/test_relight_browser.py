@@ -12,9 +12,9 @@ from PIL import Image
 
 from pipeline.cli import main
 from pipeline.experiments.synthetic import cook_torrance_images, hemisphere_lights, sphere_normals
-from pipeline.gamma import encode_gamma
+from pipeline.core.gamma import encode_gamma
 from pipeline.relight import read_model, shade
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.photometric.ps_synthetic import import_stack
 from tests.pipeline.report.browser import chromium_path, open_page
 

@@ -3,13 +3,13 @@ lights' labels, one intensity, units, and the dark frame's thumbnail."""
 
 import numpy as np
 
-from pipeline.imageio import write_image
-from pipeline.lightsio import LightSet
+from pipeline.core.imageio import write_image
+from pipeline.core.lightsio import LightSet
 from pipeline.report.charts import error_by_observations
 from pipeline.report.lights import hemisphere_svg, light_rows
 from pipeline.report.sections import scores_section
 from pipeline.report.stage import _thumbnails
-from pipeline.session import Session
+from pipeline.core.session import Session
 
 
 def test_clipped_curves_are_marked_and_the_bars_have_a_scale():

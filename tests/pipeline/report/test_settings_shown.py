@@ -6,7 +6,7 @@ from pipeline import runner
 from pipeline.cli import main
 from pipeline.report.details import settings_used
 from pipeline.report.sections import stages_table
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import lambert_stage, make_session
 
 

@@ -6,10 +6,10 @@ from urllib.parse import unquote, urlparse
 import pytest
 
 from pipeline.cli import main
-from pipeline.errors import StageError
-from pipeline.imageio import read_image
+from pipeline.core.errors import StageError
+from pipeline.core.imageio import read_image
 from pipeline.report import report_session
-from pipeline.session import Session
+from pipeline.core.session import Session
 from tests.pipeline.tiny_session import lambert_stage
 
 

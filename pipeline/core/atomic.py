@@ -5,7 +5,7 @@ truncated file.
 
 Nothing is written through a link: the temporary file is created exclusively (``mkstemp``) and
 reopened with ``O_NOFOLLOW``, and a target that is a symlink or not a regular file is refused
-(:class:`~pipeline.errors.SessionError` naming it) rather than silently replaced: a session
+(:class:`~pipeline.core.errors.SessionError` naming it) rather than silently replaced: a session
 received as an archive may hold links anywhere.
 """
 

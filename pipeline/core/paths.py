@@ -2,7 +2,7 @@
 
 One name per file, so a stage that writes a file and the stages that read it cannot disagree
 on where it lies. Paths are POSIX-style and relative to the session folder
-(:meth:`pipeline.session.Session.path` resolves and checks them).
+(:meth:`pipeline.core.session.Session.path` resolves and checks them).
 """
 
 __all__ = ["LIGHTS", "EXCLUDE", "LIGHTS_LP", "OBJECT_MASK", "SPHERE_MASK", "NORMALS", "NORMALS_MASK", "ALBEDO", "RESIDUAL", "UNCERTAINTY", "STATUS_MAP",

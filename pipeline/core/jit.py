@@ -40,16 +40,12 @@ The budget is ``--memory`` (bytes, ``8G``, ``1500M`` or a share of the available
 
 import contextlib
 import os
-import re
 import sys
 import threading
 import time
 import warnings
 
-from .errors import InputError, StageError
-
-__all__ = ["Compiled", "ENV_NO_JIT", "NOTICE_SECONDS", "VECTORISE", "jit_allowed", "njit", "single_threaded",
-           "available_bytes", "budget_bytes", "check_budget", "format_gb", "DEFAULT_SHARE", "BASE_BYTES"]
+__all__ = ["Compiled", "ENV_NO_JIT", "NOTICE_SECONDS", "VECTORISE", "jit_allowed", "njit", "single_threaded"]
 
 ENV_NO_JIT = "PSRIG_NO_JIT"
 
@@ -188,74 +184,3 @@ def single_threaded(user_api=None):
     if controller is None:
         return contextlib.nullcontext()
     return controller.limit(limits=1, user_api=user_api)
-
-
-#: the default budget's share of the available memory: the rest for the page cache and the
-#: other processes of a shared machine
-DEFAULT_SHARE = 0.8
-#: the process before the stage holds any image: Python, numpy, OpenImageIO, numba, scipy
-BASE_BYTES = 300 * 2 ** 20
-_UNITS = {"": 1, "B": 1, "K": 2 ** 10, "M": 2 ** 20, "G": 2 ** 30, "T": 2 ** 40}
-
-
-def available_bytes():
-    """Memory the system can give a new allocation now (bytes): ``MemAvailable`` from
-    /proc/meminfo, else free physical pages; the smaller of that and a cgroup's limit left."""
-    found = None
-    try:
-        with open("/proc/meminfo") as meminfo:
-            for line in meminfo:
-                if line.startswith("MemAvailable:"):
-                    found = int(line.split()[1]) * 1024
-                    break
-    except OSError:
-        pass
-    if found is None:
-        try:
-            found = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-        except (ValueError, OSError, AttributeError):
-            found = 1 << 62   # nothing to go by: no budget rather than a wrong one
-    try:   # a container's limit (cgroup v2) is the tighter bound when there is one
-        with open("/sys/fs/cgroup/memory.max") as limit, open("/sys/fs/cgroup/memory.current") as used:
-            text = limit.read().strip()
-            if text != "max":
-                found = min(found, max(0, int(text) - int(used.read().strip())))
-    except (OSError, ValueError):
-        pass
-    return found
-
-
-def budget_bytes(memory=None):
-    """The budget in bytes for ``memory``: None (:data:`DEFAULT_SHARE` of the available memory),
-    a number of bytes, or text: ``8G``, ``8GB``, ``1500M``, ``60%`` (of the available memory).
-
-    Raises InputError for text it cannot read or a budget of nothing.
-    """
-    if memory is None:
-        return int(DEFAULT_SHARE * available_bytes())
-    if isinstance(memory, (int, float)):
-        value = float(memory)
-    else:
-        match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*(%|[KMGT]?)(i?B)?\s*", str(memory), re.IGNORECASE)
-        if not match:
-            raise InputError(f"--memory: cannot read {memory!r}; give bytes, 8G, 1500M or a share such as 60%")
-        number, unit = float(match.group(1)), match.group(2).upper()
-        value = number / 100 * available_bytes() if unit == "%" else number * _UNITS[unit]
-    if value <= 0:
-        raise InputError(f"--memory: the budget must be more than nothing, got {memory!r}")
-    return int(value)
-
-
-def format_gb(size):
-    """Bytes as '1.23 GB' (GiB, as ``free -g`` counts)."""
-    return f"{size / 2 ** 30:.2f} GB"
-
-
-def check_budget(where, needs, budget, helps):
-    """Refuse a run that needs more than the budget: StageError with one line naming ``where``
-    (the session and stage), what it ``needs`` (bytes), the budget and the memory available,
-    and what ``helps``.
-    """
-    if needs > budget:
-        raise StageError(f"{where}: needs about {format_gb(needs)} of memory, the budget is {format_gb(budget)} "
-                         f"({format_gb(available_bytes())} available); {helps}")

@@ -20,13 +20,13 @@ The numbers are written to ``normals/eval.yaml``.
 import numpy as np
 import yaml
 
-from .atomic import atomic_write_text
-from .errors import InputError
-from .imageio import read_image, read_mask, read_normal_png, write_image
-from .lightsio import read_lights
-from .paths import DEPTH, ERROR_MAP, EVAL, INTEGRATION, LIGHTS, NORMALS, NORMALS_MASK, UNCERTAINTY
-from .settings.report import ReportOptions
-from .yamlio import load_yaml
+from ..core.atomic import atomic_write_text
+from ..core.errors import InputError
+from ..core.imageio import read_image, read_mask, read_normal_png, write_image
+from ..core.lightsio import read_lights
+from ..core.paths import DEPTH, ERROR_MAP, EVAL, INTEGRATION, LIGHTS, NORMALS, NORMALS_MASK, UNCERTAINTY
+from ..settings.report import ReportOptions
+from ..core.yamlio import load_yaml
 
 __all__ = ["angular_error", "error_stats", "light_errors", "intensity_errors", "position_errors", "depth_error",
            "error_map_rgb", "normal_errors", "lights_imported", "evaluate_session", "EVAL_FILE", "ERROR_MAP",
@@ -202,7 +202,7 @@ def _eval_uncertainty(session, errors):
     """How the normals stage's expected errors (``normals/uncertainty.exr``) agree with the
     actual ``errors`` (H, W, degrees): :func:`pipeline.photometric.uncertainty.agreement` over
     the pixels that have both; None without a map."""
-    from .photometric.uncertainty import agreement
+    from ..photometric.uncertainty import agreement
 
     path = session.path(UNCERTAINTY)
     if not path.is_file():

@@ -14,7 +14,7 @@ A session is the unit every stage reads and writes::
 
 Every manifest write is atomic, so a process killed at any moment leaves a valid session. A
 command that writes a session opens it with ``writer=`` (its name): it then holds the session's
-lock (:mod:`pipeline.lock`) until it closes it or ends, the session's folders are checked to lie
+lock (:mod:`pipeline.core.lock`) until it closes it or ends, the session's folders are checked to lie
 inside it, and temporary files an interrupted writer left are removed (:attr:`Session.swept`).
 """
 
@@ -29,7 +29,7 @@ from pathlib import Path, PurePosixPath
 
 import yaml
 
-from . import __version__
+from .. import __version__
 from . import lock as _lock
 from .atomic import atomic_write_bytes, atomic_write_text, sweep_tree
 from .brackets import FRAME_ID, check_brackets, stage_view
@@ -151,7 +151,7 @@ class Session:
             its :meth:`save` then takes the lock just for the write.
         wait : bool
             With ``writer``: wait for another writer to finish instead of raising
-            :class:`pipeline.lock.SessionLocked`; ``on_wait(line)`` is told once.
+            :class:`pipeline.core.lock.SessionLocked`; ``on_wait(line)`` is told once.
         """
         root = Path(root)
         if not root.is_dir():
@@ -170,7 +170,7 @@ class Session:
         sweep what interrupted writers left (:attr:`swept`). Returns self.
 
         Calling it again on a session that holds the lock does nothing. In a worker process
-        acting under its parent's lock (:func:`pipeline.lock.act_under`) nothing is swept.
+        acting under its parent's lock (:func:`pipeline.core.lock.act_under`) nothing is swept.
         """
         if self.lock is not None:
             return self
@@ -332,7 +332,7 @@ class Session:
         frame here, whose id is the group's: decode merges them into its
         :meth:`linear_path` / :meth:`saturation_path`. It carries ``kind``, ``light``,
         ``file`` (its first exposure's), ``merged_from`` (the exposures' ids) and
-        ``shutters`` (:meth:`pipeline.brackets.BracketGroup.as_frame`). Every other frame is
+        ``shutters`` (:meth:`pipeline.core.brackets.BracketGroup.as_frame`). Every other frame is
         its manifest dict, as :meth:`frames` gives it.
         """
         return [f for f in stage_view(self.manifest["frames"]) if kind is None or f["kind"] == kind]

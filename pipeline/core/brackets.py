@@ -6,7 +6,7 @@ in the manifest (``shutter`` as the rig file wrote it, ``of`` the bracket's leng
 merges the exposures of a group (each minus the dark or ambient frame of its own shutter) into
 ``linear/<group>.exr`` (:mod:`pipeline.decode.merge`); every later stage sees the group as ONE
 frame whose id is the group's
-(:func:`stage_view`, :meth:`pipeline.session.Session.stage_frames`).
+(:func:`stage_view`, :meth:`pipeline.core.session.Session.stage_frames`).
 
 The manifest is checked here (:func:`check_brackets`, called for every manifest read or
 written): the frames of a group share their kind and light and differ in index and shutter,
@@ -179,7 +179,7 @@ def _check_entry(frame, where):
 
 
 def check_brackets(frames, where):
-    """Raise :class:`pipeline.errors.ManifestError`, naming the frames, when the manifest's
+    """Raise :class:`pipeline.core.errors.ManifestError`, naming the frames, when the manifest's
     brackets cannot be merged: see the module docstring."""
     for i, frame in enumerate(frames):
         if frame.get("bracket") is not None:

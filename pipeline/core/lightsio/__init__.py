@@ -1,6 +1,6 @@
 """Light files: ``lights.yaml``, RTI ``.lp``, plain text, NumPy, MATLAB and OpenCV matrices.
 
->>> from pipeline.lightsio import read_lights, LightSet
+>>> from pipeline.core.lightsio import read_lights, LightSet
 >>> lights = read_lights("light_directions.txt", count=96)     # decided by content
 
 Directions are unit vectors (K, 3) from the surface toward the light, camera frame (x right,

@@ -33,7 +33,7 @@ class Registry(Mapping):
     kind : str
         What the names are, for messages ("photometric stereo method").
     error : type, optional
-        Exception raised for an unknown name (default :class:`pipeline.errors.InputError`).
+        Exception raised for an unknown name (default :class:`pipeline.core.errors.InputError`).
     entry_points : str, optional
         Group of Python entry points whose objects are registered on first use.
     """
