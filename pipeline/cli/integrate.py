@@ -13,7 +13,7 @@ from ..core.errors import InputError
 from ..settings.integrate import INTEGRATION_METHODS as METHOD_NAMES, IntegrateOptions
 from .writing import open_session
 
-__all__ = ["register"]
+__all__ = ["register", "METHOD_NAMES"]
 
 
 def register(subparsers):

@@ -250,8 +250,8 @@ def check_plan_frames(plan, gather, pixels):
     """``plan`` with its frames' gains measured (:func:`pipeline.photometric.frame_gains.check_frames`
     on ``gather``, the images as given, over the object's ``pixels``) and decided."""
     # near lights: an error of the object's depth changes each frame's falloff at every pixel alike,
-    # which the check would read as gains (measured: 8 of 16 frames "rescaled" by 0.74 on a plane
-    # 30 % nearer than the spheres'); their gains are checked only when asked for
+    # which the check would read as gains (docs/near-lights.md); their gains are checked only when
+    # asked for
     plan = check_plan_selection(plan, gather, pixels)
     mode = False if plan.near is not None and plan.frame_gains == "auto" else plan.frame_gains
     # unchecked, no sample is gathered (near lights' per-pixel directions cost; the near-depth
@@ -354,10 +354,9 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     def probe(run_lights):
         # a probe only measures how the mismatch answers the cone's scale: the pixels that peaked
         # at the first lights are enough, with the shared shape fitted again for these lights (with
-        # the first lights' shape the normals barely follow the scale: ball 0.53 -> 0.43 degrees
-        # at 1.05 against 0.14 refitted). It selects afresh: its median mismatch is the secant's
-        # slope, and the kept selection moved it (through the shared shape's sample) by 0.2
-        # degrees on ball's session, its root 1.050 -> 1.035 and the error 0.87 -> 1.06 degrees
+        # the first lights' shape the normals barely follow the scale). It selects afresh: its
+        # median mismatch is the secant's slope, which the kept selection would bias
+        # (docs/photometric-stereo.md, "Constants")
         probes.append(run(run_lights, on=np.sort(runs[0].peaks), context=later_context(run_lights)))
         return probes[-1].mismatch
 

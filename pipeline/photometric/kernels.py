@@ -4,8 +4,8 @@
 (each pixel's normal and 9 coefficients by Levenberg-Marquardt, the same mathematics and
 stopping rule), pixel by pixel: a pixel's used observations are copied into one row per
 quantity, and each sum over them (the 25 moments, the basis sums, the cost) is one loop with
-scalar accumulators, which the compiler vectorises (:data:`pipeline.core.jit.VECTORISE`: measured
-on DiLiGenT reading, 30 -> 9 us per pixel with the fit's variable projection and damping rule).
+scalar accumulators, which the compiler vectorises (:data:`pipeline.core.jit.VECTORISE`; the
+speed-ups are in docs/photometric-stereo.md, "Speed").
 Lights may be shared (K, 3) or per pixel (N, K, 3). Everything is float64; each pixel's result
 depends on that pixel alone, so it is the same whatever chunk it is computed in.
 
@@ -857,8 +857,7 @@ def _kth_by_rank(a, n, kth, bound):
 
     The value with at most kth values below it and more than kth at or below it, found by
     branch-free counting passes over the candidates below ``bound``; for the start's 32
-    squared residuals that measured 3.9 -> 2.4 us per pixel (DiLiGenT reading, the whole start)
-    against a quickselect, whose data-dependent branches mispredict.
+    squared residuals faster than a quickselect, whose data-dependent branches mispredict.
     """
     for i in range(n):
         v = a[i]
@@ -880,10 +879,9 @@ def _kth_by_bits(a, bits, n, kth):
 
     By bisection on the values' bit patterns, which non-negative floats order as integers:
     each of its at most 31 steps is one branch-free counting pass, which vectorises. For the
-    MAD's median of some 80 values that measured 2.3 -> 1.3 us per pixel against a quickselect
-    (whose data-dependent branches mispredict); for the start's 32 values :func:`_kth_by_rank`,
-    which skips the values above the best median so far, is faster (measured 15-25 % of the
-    whole selection).
+    MAD's median of some 80 values faster than a quickselect (whose data-dependent branches
+    mispredict); for the start's 32 values :func:`_kth_by_rank`, which skips the values above
+    the best median so far, is faster (docs/photometric-stereo.md, "Speed").
     """
     lo, hi = bits[0], bits[0]
     for j in range(1, n):

@@ -31,8 +31,7 @@ __all__ = ["shadow_weights", "select_robust", "select_darkest", "select_observat
            "WIDE_T_SHADOW", "T_SHADOW", "REJECT_K", "CONSENSUS", "MIN_DET", "SCALE_FLOOR", "SCORED"]
 
 #: at most this many of a pixel's lit observations rank its triplets (the cost of the start
-#: grows with them). Measured with 48 triplets (DiLiGenT ball / cat / reading): all 0.849 /
-#: 4.896 / 10.775 degrees, 32 of them 0.844 / 4.887 / 10.831 at about half the cost
+#: grows with them; scoring all of them is no more accurate: docs, "Constants")
 SCORED = 32
 #: triplets whose three directions are closer to coplanar than this (|det|) are not tried
 MIN_DET = 1e-3
@@ -143,10 +142,8 @@ def consensus_weights(obs, lights, base, triplets, k_in=2.5, scale_floor=0.0):
     squares; the median is taken over at most :data:`SCORED` of them, evenly spread), provided
     b faces the camera. The median is over the residuals the triplet does not fit itself: its
     own observations, where scored, are zero, and counted they put the median of a few lights'
-    residuals at or beside those zeros, so that noise was rejected (random DiLiGenT subsets, 30
-    per light count, on the pixels every method solves: 4 lights 13.71 -> 12.15 degrees, 5 13.15
-    -> 11.29, 6 10.16 -> 9.57, 8 8.70 -> 8.10, 12 7.24 -> 7.14; the 96-light objects within
-    0.03; docs/photometric-stereo.md, "Few lights"). The kept observations are those within
+    residuals at or beside those zeros, so that noise was rejected (docs/photometric-stereo.md,
+    "Few lights"). The kept observations are those within
     ``k_in`` times the robust scale of that median (Rousseeuw's 1.4826 (1 + 5 / (n - 3))
     sqrt(median)). Pixels with no usable triplet keep ``base``. Returns 0/1 weights (N, K), a
     subset of base.

@@ -19,7 +19,7 @@ from ..core.atomic import atomic_write_text
 from ..integrate.mesh import build_mesh
 from .images import shrink
 
-__all__ = ["mesh_payload", "write_mesh_view", "viewer_source", "MAX_VERTICES", "VIEWER"]
+__all__ = ["mesh_payload", "write_mesh_view", "write_view_files", "viewer_source", "MAX_VERTICES", "VIEWER"]
 
 MAX_VERTICES = 60000
 #: the viewer, shipped with psrig (package data)
@@ -93,10 +93,16 @@ def mesh_payload(depth, normals=None, albedo=None, K=None):
 
 def write_mesh_view(folder, key, payload):
     """Write ``folder/mesh_<key>.js`` and ``folder/viewer.js``; returns their file names."""
+    return write_view_files(folder, "PSRIG_MESHES", f"mesh_{key}.js", key, payload, VIEWER)
+
+
+def write_view_files(folder, variable, data_name, key, payload, viewer):
+    """Write a view's data, ``folder/data_name`` (``payload`` as ``window.<variable>[key]``: a
+    script the page loads from disk, where a fetch of JSON is not allowed), and its viewer
+    script (the file ``viewer``) beside it; returns their file names."""
     folder = Path(folder)
-    script = (f"window.PSRIG_MESHES = window.PSRIG_MESHES || {{}};\n"
-              f"window.PSRIG_MESHES[{json.dumps(key)}] = {json.dumps(payload)};\n")
-    data_name = f"mesh_{key}.js"
+    script = (f"window.{variable} = window.{variable} || {{}};\n"
+              f"window.{variable}[{json.dumps(key)}] = {json.dumps(payload)};\n")
     atomic_write_text(folder / data_name, script)
-    atomic_write_text(folder / VIEWER.name, viewer_source())
-    return data_name, VIEWER.name
+    atomic_write_text(folder / viewer.name, viewer.read_text(encoding="utf-8"))
+    return data_name, viewer.name

@@ -13,14 +13,13 @@ network. The nearest captured frame is the report's own thumbnail (``frames/<id>
 
 import base64
 import html
-import json
 from pathlib import Path
 
 import numpy as np
 
-from ..core.atomic import atomic_write_text
 from ..relight import shade
 from .images import robust_max
+from .mesh_view import write_view_files
 
 __all__ = ["relight_payload", "write_relight_view", "relight_section", "viewer_source", "MAX_SIDE", "VIEWER",
            "START_LIGHT", "display_white"]
@@ -88,13 +87,7 @@ def relight_payload(model, lights=None, frames=None, max_side=MAX_SIDE):
 
 def write_relight_view(folder, key, payload):
     """Write ``folder/relight_<key>.js`` and ``folder/relight.js``; returns their file names."""
-    folder = Path(folder)
-    script = (f"window.PSRIG_RELIGHT = window.PSRIG_RELIGHT || {{}};\n"
-              f"window.PSRIG_RELIGHT[{json.dumps(key)}] = {json.dumps(payload)};\n")
-    data_name = f"relight_{key}.js"
-    atomic_write_text(folder / data_name, script)
-    atomic_write_text(folder / VIEWER.name, viewer_source())
-    return data_name, VIEWER.name
+    return write_view_files(folder, "PSRIG_RELIGHT", f"relight_{key}.js", key, payload, VIEWER)
 
 
 def _nearest_frame(payload):

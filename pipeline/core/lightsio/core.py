@@ -84,16 +84,19 @@ def check_directions(directions, where="lights"):
     bad = ~np.isfinite(d).all(axis=1)
     if bad.any():
         raise InputError(f"{where}: light {int(np.argmax(bad))} has a non-finite direction")
-    # each row scaled by its largest component first: the norm of (1e308, 1e308, 0) overflows
-    scale = np.abs(d).max(axis=1)
-    scaled = d / np.where(scale > 0, scale, 1.0)[:, None]
-    unit_norm = np.linalg.norm(scaled, axis=1)
     with np.errstate(over="ignore"):
-        norm = scale * unit_norm
+        norm = np.linalg.norm(d, axis=1)
+    # the norm of (1e308, 1e308, 0) overflows: such rows are scaled by their largest component
+    # first (the others are divided by their norm as they are, to the last bit)
+    huge = ~np.isfinite(norm)
+    if huge.any():
+        d, norm = d.copy(), norm.copy()
+        d[huge] /= np.abs(d[huge]).max(axis=1, keepdims=True)
+        norm[huge] = np.linalg.norm(d[huge], axis=1)
     if (norm < 1e-9).any():
         k = int(np.argmax(norm < 1e-9))
         raise InputError(f"{where}: light {k} has a zero direction vector {d[k].tolist()}")
-    return scaled / unit_norm[:, None]
+    return d / norm[:, None]
 
 
 def check_intensities(values, count, where="intensities"):
