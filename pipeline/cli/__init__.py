@@ -52,7 +52,7 @@ def main(argv=None):
         print("psrig: interrupted", file=sys.stderr)
         return 130
     if extra:
-        return _unknown(parser, args, extra)
+        _unknown(parser, args, extra)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
@@ -80,9 +80,10 @@ def main(argv=None):
 
 
 def _unknown(parser, args, extra):
-    """An option (or word) the command does not take: its own usage (argparse would show psrig's
-    top-level one), the word, the options it does take (a misspelt stage option must not look
-    like a missing one) and the commands that take it (an option given to the wrong command)."""
+    """Refuse an option (or word) the command does not take (SystemExit 2): with the command's
+    own usage (argparse would show psrig's top-level one), the options it does take (a misspelt
+    stage option must not look like a missing one) and the commands that take it (an option
+    given to the wrong command)."""
     target, path = parser, []
     while (action := _subparsers(target)) is not None and getattr(args, action.dest, None) in action.choices:
         path.append(getattr(args, action.dest))
@@ -95,11 +96,7 @@ def _unknown(parser, args, extra):
     owners = _owners(parser, word, command) if word.startswith("-") else []
     hint = f" ({word} is an option of psrig {', psrig '.join(owners[:4])}{' ...' if len(owners) > 4 else ''})" \
         if owners else ""
-    target.print_usage(sys.stderr)
-    what = "option" if word.startswith("-") else "argument"
-    print(f"psrig {command}: error: unknown {what} {word}{hint}; psrig {command} takes: {', '.join(flags)}",
-          file=sys.stderr)
-    return 2
+    target.error(f"unrecognized arguments: {' '.join(extra)}{hint}; psrig {command} takes: {', '.join(flags)}")
 
 
 def _owners(parser, option, command):
