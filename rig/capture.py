@@ -38,9 +38,7 @@ from __future__ import annotations
 import datetime as _dt
 import os
 import re
-import signal
 import sys
-import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -51,6 +49,7 @@ import numpy as np
 from pipeline.core.errors import PsrigError, SessionError, describe_os_error
 from pipeline.core.progress import progress as progress_bar
 from pipeline.core.session import FOLDERS, MANIFEST, Session, now_iso
+from pipeline.core.signals import sigterm_raises
 from rig.camera import CameraError, format_exposure
 from rig.drivers import make_camera, make_light_controller
 from rig.keepalive import LightHold
@@ -181,7 +180,7 @@ def capture_session(target, rig_config, *, resume=False, sim=None, progress=True
     start = time.perf_counter()
     sphere = bool(rig_config.frames.get("sphere", True) if sphere is None else sphere)
     session, root = _existing_session(target, rig_config, resume)
-    with open_devices(rig_config, sim) as devices, _sigterm_as_interrupt():
+    with open_devices(rig_config, sim) as devices, sigterm_raises(CaptureInterrupted):
         devices.exposure = set_camera_exposure(rig_config, devices, echo)
         set_light_levels(rig_config, devices, echo)
         checked = None
@@ -273,22 +272,6 @@ def open_devices(rig_config, sim):
     with lights, camera:  # the lights' context switches them OFF on the way out
         yield _Devices(lights, camera)
 
-
-@contextmanager
-def _sigterm_as_interrupt():
-    """Turn SIGTERM into :class:`CaptureInterrupted` (a KeyboardInterrupt) inside the block."""
-    if threading.current_thread() is not threading.main_thread():
-        yield  # only the main thread may install signal handlers
-        return
-
-    def interrupt(signum, frame):
-        raise CaptureInterrupted("terminated (SIGTERM)")
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
 # -- the manifest ---------------------------------------------------------------------------------

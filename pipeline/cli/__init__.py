@@ -6,15 +6,14 @@ code or None). :data:`COMMANDS` lists them in the order ``psrig --help`` shows t
 """
 
 import argparse
-import contextlib
 import importlib
 import os
 import signal
 import sys
-import threading
 
 from .. import __version__
 from ..core.errors import PsrigError, describe_os_error
+from ..core.signals import sigterm_raises
 from .writing import WRITERS, add_wait_option
 
 __all__ = ["main", "COMMANDS"]
@@ -57,7 +56,7 @@ def main(argv=None):
         parser.print_help()
         return 2
     try:
-        with _terminate_as_interrupt():
+        with sigterm_raises(Terminated):
             code = args.func(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
     except Terminated:
@@ -118,24 +117,6 @@ def _subparsers(parser):
 class Terminated(KeyboardInterrupt):
     """SIGTERM arrived: the command stops as on Ctrl-C (what it finished is recorded, its
     worker processes and their semaphores are released)."""
-
-
-@contextlib.contextmanager
-def _terminate_as_interrupt():
-    """Within the block, SIGTERM raises :class:`Terminated` in the main thread (a command
-    installing its own handler, capture, replaces it for its time)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def terminate(signum, frame):
-        raise Terminated("terminated (SIGTERM)")
-
-    previous = signal.signal(signal.SIGTERM, terminate)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _closed_pipe():
