@@ -203,10 +203,9 @@ def plan_solve(method, lights, options):
     options = resolve_selection(directions, options)
     specular_anchor = options.pop("specular_anchor", "auto")
     frame_gains = options.pop("frame_gains", "auto")
+    # checked with the method's options (its declaration: above 0) before any plan is made
     uncertain_deg = options.pop("uncertain_deg", None)
     uncertain_deg = UNCERTAIN_DEG if uncertain_deg is None else float(uncertain_deg)
-    if not uncertain_deg > 0:
-        raise InputError(f"uncertain_deg must be a positive angle in degrees, got {uncertain_deg!r}")
     anchor = anchor_wanted(method_traits(solver).wants_anchor, specular_anchor, options, directions, near)
     return SolvePlan(method, solver, directions, near, options, anchor, specular_anchor is True, frame_gains,
                      uncertain_deg, given, specular_anchor)

@@ -41,7 +41,7 @@ from .summary import normals_summary, normals_warnings
 
 __all__ = ["NormalsStage", "normals_session", "registration_verdict", "begin_normals", "record_normals",
            "predict_held_out", "NormalsRun", "ChannelSums", "load_object_stack", "solve_without", "normals_memory",
-           "stack_shape", "MAP_BYTES", "object_mask", "light_model", "stage_params", "model_record",
+           "stack_shape", "MAP_BYTES", "object_mask", "light_model", "model_record",
            "frame_gains_record", "registration_record",
            "STAGE",
            "LIGHT_MODELS", "ALIGN_MODES", "PAPER_NAMES", "STATUS_COLOURS", "SELECTION_KEYS"]
@@ -164,12 +164,6 @@ def light_model(lights, requested="auto"):
     if requested == "near" or lights.extra.get("light_model", "near") != "directional":
         return "near"
     return "directional"
-
-
-def stage_params(options):
-    """The stage record's parameters of :class:`pipeline.settings.NormalsOptions` (or a mapping
-    of them): the method, and every option not at its default."""
-    return NormalsOptions.of(options).record() if not isinstance(options, NormalsOptions) else options.record()
 
 
 def _read_stage_lights(session, frames):
