@@ -24,7 +24,8 @@ at most :data:`ALIGN_PRECISION`); aligning does better than leaving the frames o
 left are lopsided (docs). Captures are never changed: only the
 stack in memory is. Directional lights only (near lights' per-pixel
 directions are not rebuilt here). Images larger than :data:`WORK_PIXELS` around the object are
-registered on every n-th pixel (shifts still in full-resolution pixels).
+registered on every n-th pixel (shifts still in full-resolution pixels; :data:`MIN_SHIFT_PX` in
+pixels of that grid).
 """
 
 import cv2
@@ -38,7 +39,9 @@ from .near_lights import PointLights
 __all__ = ["check_registration", "predict_frames", "frame_shifts", "moved_frames", "align_frames", "alignable",
            "MIN_SHIFT_PX", "SPREAD_FACTOR", "WORK_PIXELS", "SAMPLE_PIXELS", "MIN_FRAMES", "RESOLVES", "ALIGN_PRECISION"]
 
-#: a frame is named only when it departs from the others by more than this many pixels ...
+#: a frame is named only when it departs from the others by more than this many pixels of the
+#: grid it is registered on (full resolution, or every n-th pixel of a large object: a shift is
+#: measured to a fraction of that grid's pixel, not of the camera's) ...
 MIN_SHIFT_PX = 0.5
 #: ... and by more than this many times the frames' median departure
 SPREAD_FACTOR = 4.0
@@ -230,7 +233,8 @@ def check_registration(images, result, lights, valid=None, resolve=None):
         ``threshold_px``, ``median_departure_px``, ``largest_px`` and ``moved``: {frame index:
         [d_cols, d_rows]} (px, full resolution, against the median of the frames not moved),
         ``run_from``: the first moved frame when the moved frames are every frame from it to
-        the last (the capture's order) and ``resolves`` (solves without the moved frames).
+        the last (the capture's order), ``resolves`` (solves without the moved frames) and
+        ``grid_px`` (the registration's grid: every n-th pixel).
     """
     if isinstance(lights, PointLights) or np.ndim(lights) != 2:
         return {"verdict": "not checked", "reason": "near lights"}
@@ -252,15 +256,16 @@ def check_registration(images, result, lights, valid=None, resolve=None):
     def register(solved):
         return stride * frame_shifts(seen, predict_frames(solved, lights, box, stride), region[window], usable)[0]
 
+    min_shift = MIN_SHIFT_PX * stride
     shifts = register(result)
-    moved, departure, threshold = moved_frames(shifts)
+    moved, departure, threshold = moved_frames(shifts, min_shift=min_shift)
     resolves = 0
     while moved.size and resolve is not None and resolves < RESOLVES and len(lights) - moved.size >= MIN_FRAMES:
         keep = np.ones(len(lights), bool)
         keep[moved] = False
         shifts = register(resolve(keep))
         resolves += 1
-        again, departure, threshold = moved_frames(shifts, keep)
+        again, departure, threshold = moved_frames(shifts, keep, min_shift=min_shift)
         settled = np.array_equal(again, moved)
         moved = again
         if settled:
@@ -270,7 +275,7 @@ def check_registration(images, result, lights, valid=None, resolve=None):
     offsets = shifts - np.median(shifts[keep] if keep.any() else shifts, axis=0)
     found = {"verdict": "moved" if moved.size else "consistent", "threshold_px": round(threshold, 2),
              "median_departure_px": round(float(np.median(departure[keep] if keep.any() else departure)), 3),
-             "largest_px": round(float(departure.max()), 2), "resolves": resolves,
+             "largest_px": round(float(departure.max()), 2), "resolves": resolves, "grid_px": stride,
              "moved": {int(k): [round(float(v), 2) for v in offsets[k]] for k in moved}}
     if moved.size >= 2 and moved[-1] == len(lights) - 1 and np.all(np.diff(moved) == 1):
         found["run_from"] = int(moved[0])

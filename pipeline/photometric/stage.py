@@ -222,7 +222,20 @@ class ChannelSums:
         self.sums = scaled if self.sums is None else np.add(self.sums, scaled, out=self.sums)
 
 
-def load_object_stack(session, frames, lights, channels=None, out=None, workers=None):
+def channel_mean(pixels, out):
+    """``np.mean(pixels, axis=2, out=out)`` for pixels (H, W, C) float32, to the bit, without
+    numpy's reduction over a short last axis (an order of magnitude slower than adding the
+    channel planes): below 8 channels numpy adds them one after another, as here."""
+    count = pixels.shape[2]
+    if count >= 8:
+        return np.mean(pixels, axis=2, out=out)
+    np.copyto(out, pixels[:, :, 0])
+    for channel in range(1, count):
+        np.add(out, pixels[:, :, channel], out=out)
+    return np.divide(out, np.float32(count), out=out)
+
+
+def load_object_stack(session, frames, lights, channels=None, out=None, workers=None, stored=None):
     """Grey linear stack (K, H, W) float32 with intensities divided out, and valid (K, H, W) bool;
     ``channels`` (a :class:`ChannelSums`) gathers the colour sums on the way.
 
@@ -237,6 +250,9 @@ def load_object_stack(session, frames, lights, channels=None, out=None, workers=
     out : (ndarray, ndarray), optional
         The stack (K, H, W) float32 and valid (K, H, W) bool to fill (e.g. memory-mapped
         files); default new arrays.
+    stored : callable, optional
+        ``stored(index)`` once frame ``index`` is in ``out`` (a mapped file's writer gives the
+        frame's pages back to the page cache there).
     """
     first = session.linear_path(frames[0])
     height, width, _ = image_size(first)
@@ -267,8 +283,10 @@ def load_object_stack(session, frames, lights, channels=None, out=None, workers=
             # the same float32 arithmetic as read_image then ``linear / gain``, in the file's buffer
             scaled = to_float(pixels)
             np.divide(scaled, gain.astype(np.float32), out=scaled)
-            np.mean(scaled, axis=2, out=images[index])
+            channel_mean(scaled, images[index])
             np.logical_not(read_mask(session.saturation_path(frame)), out=valid[index])
+            if stored is not None:
+                stored(index)
         except BaseException:
             state["failed"] = True
             raise
@@ -306,21 +324,22 @@ MASK_PARTS = 10
 MASK_MOST = 0.85
 
 
-def object_mask(session, run, images):
-    """The session's object mask, or pixels whose brightest observation in ``images`` (K, H, W)
-    exceeds :data:`MASK_LEVEL` of the object's bright level; where it came from, its pixels
-    and parts go to ``run.mask_info`` (the record's ``mask``, :func:`mask_info`)."""
+def object_mask(session, run, shape, peak):
+    """The session's object mask (H, W) bool, checked against the frames' ``shape`` (H, W), or
+    the pixels whose brightest observation (``peak()``, (H, W), called only then) exceeds
+    :data:`MASK_LEVEL` of the object's bright level; where it came from, its pixels and parts
+    go to ``run.mask_info`` (the record's ``mask``, :func:`mask_info`)."""
     if run.mask_rel:
         mask = read_mask(session.path(run.mask_rel))
-        if mask.shape != images.shape[1:]:
+        if mask.shape != tuple(shape):
             raise StageError(f"{session.path(run.mask_rel)}: mask size {mask.shape} differs from the frames' "
-                             f"{images.shape[1:]}")
+                             f"{tuple(shape)}")
         if not mask.any():   # edited after import (import refuses an empty mask)
             raise StageError(f"{session.path(run.mask_rel)}: the object mask is empty (no white pixel); "
                              "replace it by the object's mask")
         run.mask_info = mask_info(mask, run.mask_rel)
         return mask
-    peak = images.max(axis=0)
+    peak = peak()
     mask = peak > MASK_LEVEL * np.percentile(peak, 99.5)
     run.mask_info = mask_info(mask)
     return mask
@@ -448,7 +467,7 @@ def normals_session(session, *, force=False, show_progress=True, tiled=None, **o
 
     channels = ChannelSums()
     images, valid = load_object_stack(session, run.frames, run.lights, channels)
-    mask = object_mask(session, run, images)
+    mask = object_mask(session, run, images.shape[1:], lambda: images.max(axis=0))
     lap("read")
     passes = PASSES if run.model == "near" and near_depth else 0
     solved_with = {}

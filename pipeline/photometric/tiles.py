@@ -27,6 +27,7 @@ serial stage's even where the solver's last bits depend on the chunk it is given
 
 import shutil
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,7 +35,9 @@ import numpy as np
 
 from ..core.atomic import atomic_path
 from ..core.errors import InputError, StageError
+from ..core.imageio import read_workers
 from ..core.jit import single_threaded
+from ..core.mapped import MappedNpy, create_npy
 from ..core.paths import LIGHTS, TILES_SCRATCH
 from ..core.session import Session
 from .anchor import first_verdict
@@ -42,9 +45,9 @@ from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gathere
                      scatter_chunk, solve_chunk)
 from .estimate import check_lights, check_plan_frames, plan_solve, result_from_maps
 from .stage import (STAGE, ChannelSums, NormalsRun, begin_normals, load_object_stack, object_mask, predict_held_out,
-                    record_normals, registration_verdict)
+                    record_normals, registration_verdict, stack_shape)
 
-__all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack",
+__all__ = ["TilePlan", "plan_normals", "run_tile", "assemble_normals", "pixel_tiles", "write_stack", "stack_peak",
            "tile_context", "frame_check", "solve_tiled", "SCRATCH", "WHOLE_IMAGE"]
 
 SCRATCH = TILES_SCRATCH
@@ -115,33 +118,35 @@ def pixel_tiles(mask, tile_pixels, chunk):
     return tiles
 
 
-def write_stack(folder, frames, load, name=str):
-    """Write stack.npy (K, H, W) float32 and valid.npy (K, H, W) bool one frame at a time.
+def write_stack(folder, shape, fill):
+    """Write stack.npy (K, H, W) float32 and valid.npy (K, H, W) bool, atomically.
 
-    ``load(frame)`` returns (image (H, W) float32, valid (H, W) bool); ``name(frame)`` names a
-    frame in errors. Both files are written atomically; only one frame is in memory at once.
-    Returns the per-pixel peak (H, W) over the frames.
+    ``fill(stack, valid, stored)`` fills the two files, mapped into memory, and calls
+    ``stored(index)`` after each frame: the pages written so far go back to the page cache
+    there, so that the writer holds only the frames in flight, not the stack.
     """
     folder = Path(folder)
     with atomic_path(folder / "stack.npy") as tmp_stack, atomic_path(folder / "valid.npy") as tmp_valid:
-        stack = valid = peak = None
-        for k, frame in enumerate(frames):
-            image, ok = load(frame)
-            if stack is None:
-                shape = (len(frames),) + image.shape
-                stack = np.lib.format.open_memmap(tmp_stack, mode="w+", dtype=np.float32, shape=shape)
-                valid = np.lib.format.open_memmap(tmp_valid, mode="w+", dtype=bool, shape=shape)
-                peak = image.copy()
-            if image.shape != stack.shape[1:]:
-                raise StageError(f"{name(frame)}: size {image.shape} differs from "
-                                 f"{name(frames[0])}'s {stack.shape[1:]}")
-            stack[k], valid[k] = image, ok
-            np.maximum(peak, image, out=peak)
-        stack.flush()
-        valid.flush()
-        del stack, valid
-    return peak
+        create_npy(tmp_stack, shape, np.float32)
+        create_npy(tmp_valid, shape, bool)
+        with MappedNpy(tmp_stack, write=True) as stack, MappedNpy(tmp_valid, write=True) as valid:
+            def stored(_):
+                stack.release()
+                valid.release()
 
+            fill(stack.array, valid.array, stored)
+
+
+def stack_peak(path, rows=256):
+    """Each pixel's brightest observation (H, W) over the stack (K, H, W) in ``path``, read
+    ``rows`` rows at a time (the pages read are given back after each band)."""
+    with MappedNpy(path) as mapped:
+        stack = mapped.array
+        peak = np.empty(stack.shape[1:], stack.dtype)
+        for r0 in range(0, stack.shape[1], rows):
+            np.max(stack[:, r0:r0 + rows], axis=0, out=peak[r0:r0 + rows])
+            mapped.release()
+    return peak
 
 
 def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=CHUNK_SIZE, run=None):
@@ -163,12 +168,14 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=CH
         return WHOLE_IMAGE
     folder.mkdir(parents=True)
     channels = ChannelSums()
-    peak = write_stack(folder, run.frames, lambda frame: _load_frame(session, frame, run.lights, channels),
-                       name=session.linear_path)
+    shape = stack_shape(session, run.frames)[:3]
+    write_stack(folder, shape,
+                lambda stack, valid, stored: load_object_stack(session, run.frames, run.lights, channels,
+                                                               out=(stack, valid), stored=stored))
     if channels.sums is not None and not channels.grey:   # the albedo's colour, for assemble_normals
         with atomic_path(folder / CHANNELS) as tmp:
             np.save(tmp, channels.sums)
-    mask = object_mask(session, run, peak[None])
+    mask = object_mask(session, run, shape[1:], lambda: stack_peak(folder / "stack.npy"))
     if not mask.any():
         raise InputError(f"{session.root}: normals: the mask has no pixels")
     with atomic_path(folder / "mask.npy") as tmp:
@@ -180,12 +187,6 @@ def plan_normals(session, options, *, force=False, tile_pixels=1 << 18, chunk=CH
     solve = frame_check(folder, mask, plan_solve(run.method, lights, run.options))
     return TilePlan(str(session.root), solve, tile_context(folder, mask, solve), mask.shape,
                     pixel_tiles(mask, tile_pixels, chunk), chunk, run)
-
-
-def _load_frame(session, frame, lights, channels):
-    # the same arithmetic as the serial stage, one frame at a time
-    images, valid = load_object_stack(session, [frame], lights, channels)
-    return images[0], valid[0]
 
 
 def frame_check(folder, mask, solve):
@@ -202,12 +203,34 @@ def tile_context(folder, mask, solve):
                            solve.options)
 
 
+class _FrameByFrame:
+    """The scratch file's stack as a (K, H x W) array for :func:`gatherer` whose pixel lists
+    (``[:, idx]``) are read a frame at a time, each frame's pages given back after it: a
+    sample spread over the object touches most pages of every frame, which one gather through
+    a plain mapping would leave in this process's memory together."""
+
+    def __init__(self, path):
+        self.path = path
+        with MappedNpy(path) as mapped:
+            self.dtype = mapped.array.dtype
+            self.shape = (mapped.array.shape[0], int(np.prod(mapped.array.shape[1:])))
+
+    def __getitem__(self, key):
+        frames, idx = key
+        if frames != slice(None):
+            raise IndexError("only every frame's pixels [:, idx] are read here")
+        out = np.empty((self.shape[0], len(idx)), self.dtype)
+        with MappedNpy(self.path) as mapped:
+            flat = mapped.array.reshape(self.shape)
+            for k in range(self.shape[0]):
+                out[k] = flat[k, idx]
+                mapped.release()
+        return out
+
+
 def _stack_gatherer(folder, solve, gains):
-    stack = np.load(Path(folder) / "stack.npy", mmap_mode="r")
-    valid = np.load(Path(folder) / "valid.npy", mmap_mode="r")
-    k = stack.shape[0]
-    return gatherer(stack.reshape(k, -1), valid.reshape(k, -1), solve.solver_lights,
-                    gains=gains)
+    return gatherer(_FrameByFrame(Path(folder) / "stack.npy"), _FrameByFrame(Path(folder) / "valid.npy"),
+                    solve.solver_lights, gains=gains)
 
 
 def _registration(plan, result):
@@ -336,10 +359,23 @@ def solve_tiled(session, run, memory, **options):
         return None
     try:
         planned = time.perf_counter()
-        for tile in plan.tiles:
-            run_tile(plan, tile)
+        _run_tiles(plan)
         timings = {"read": round(planned - started, 3), "solve": round(time.perf_counter() - planned, 3)}
         record = assemble_normals(plan, timings=timings, memory=memory)
     finally:
         shutil.rmtree(plan.scratch(), ignore_errors=True)
     return None if record == WHOLE_IMAGE else record
+
+
+def _run_tiles(plan):
+    """Every tile of ``plan``, on as many threads as frames are read with (the kernels release
+    the GIL; each tile is its own file, so the assembled maps do not depend on the order)."""
+    # one limit around the pool: the tiles' own single-thread contexts, entered and left by
+    # several threads at once, would otherwise restore each other's limit
+    with single_threaded():
+        pool = ThreadPoolExecutor(read_workers(), thread_name_prefix="psrig-tile")
+        try:
+            for task in [pool.submit(run_tile, plan, tile) for tile in plan.tiles]:
+                task.result()
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)

@@ -128,3 +128,18 @@ def test_other_methods_are_rendered_lambertian_and_still_registered(scene):
     found = check_registration(shaken, result, LIGHTS)
     # a Lambertian rendering of a glossy sphere measures the shift less closely (1.7 of 2 px)
     assert sorted(found["moved"]) == [5] and np.allclose(found["moved"][5], [0.0, 2.0], atol=0.5)
+
+
+def test_a_large_object_is_judged_in_pixels_of_the_grid_it_is_registered_on(scene, monkeypatch):
+    """A shift is measured to a fraction of the registration grid's pixel: on every third pixel
+    the threshold is three times as many camera pixels, so that a still object is not named
+    from the grid's imprecision, while a real bump still is."""
+    from pipeline.photometric import registration
+
+    monkeypatch.setattr(registration, "WORK_PIXELS", 1500)
+    images, mask = scene
+    still = check(images, mask)
+    assert still["grid_px"] == 3 and still["threshold_px"] >= 3 * MIN_SHIFT_PX
+    assert still["verdict"] == "consistent"
+    bumped = check(moved(images, [3, 11], (6.0, -3.0)), mask)
+    assert sorted(bumped["moved"]) == [3, 11]

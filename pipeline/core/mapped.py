@@ -1,0 +1,62 @@
+"""A ``.npy`` file mapped into memory whose pages the process can give back while it works.
+
+A memory-mapped array's pages count in the process's resident set once touched, and stay
+there until the mapping closes, though the kernel can drop them (they are the file's page
+cache). Writing a stack of frames a frame at a time through one mapping would therefore show
+the whole stack as the writer's memory by the last frame. :class:`MappedNpy` maps the file
+itself (:mod:`mmap`) so that :meth:`MappedNpy.release` can hand the touched pages back to the
+page cache (``MADV_DONTNEED``: for a shared file mapping the data stays in the file's pages
+and is read back on the next touch; nothing written is lost).
+"""
+
+import mmap
+
+import numpy as np
+
+__all__ = ["MappedNpy", "create_npy"]
+
+
+def create_npy(path, shape, dtype):
+    """Create ``path``, a ``.npy`` file of ``shape`` and ``dtype`` (sparse: no page written)."""
+    array = np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=tuple(shape))
+    del array
+
+
+class MappedNpy:
+    """``with MappedNpy(path, write=False) as mapped:`` ``mapped.array`` is the file's array
+    (C order), read-only unless ``write``; ``mapped.release()`` drops its pages from this
+    process's memory; leaving the block flushes (when written) and unmaps."""
+
+    def __init__(self, path, write=False):
+        self.path, self.write = str(path), write
+        self.array, self._map = None, None
+
+    def __enter__(self):
+        with open(self.path, "r+b" if self.write else "rb") as f:
+            major, _ = np.lib.format.read_magic(f)
+            read_header = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+            shape, fortran, dtype = read_header(f)
+            if fortran:
+                raise ValueError(f"{self.path}: a Fortran-ordered array cannot be mapped here")
+            offset = f.tell()
+            self._map = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_WRITE if self.write else mmap.ACCESS_READ)
+        self.array = np.ndarray(shape, dtype, buffer=self._map, offset=offset)
+        if not self.write:
+            self.array.flags.writeable = False
+        return self
+
+    def release(self):
+        """Drop the mapping's resident pages from this process: written pages stay in the file's
+        page cache, marked for writing back, so nothing needs flushing first."""
+        if hasattr(mmap, "MADV_DONTNEED"):   # not on every platform: there the pages stay mapped
+            self._map.madvise(mmap.MADV_DONTNEED)
+
+    def __exit__(self, *exc):
+        self.array = None
+        if self.write:
+            self._map.flush()
+        try:
+            self._map.close()
+        except BufferError:   # a view of the array outlives the block: the map closes with it
+            pass
+        return False
