@@ -27,9 +27,10 @@ from pipeline.photometric import check_registration, estimate_normals
 from diligent import pinv_seconds  # the one baseline, beside this script
 
 
-def shifted(images, frames, rng, low, high, one=None):
-    """images with ``frames`` moved (by ``one`` (cols, rows) px, else each by a random 1-6 px)."""
-    out, truth = images.copy(), {}
+def shifted(images, valid, frames, rng, low, high, one=None):
+    """images and their saturation flags ``valid`` with ``frames`` moved (by ``one`` (cols, rows)
+    px, else each by a random ``low``-``high`` px; pixels shifted in from outside not valid)."""
+    out, out_valid, truth = images.copy(), valid.copy(), {}
     for k in frames:
         if one is None:
             direction = rng.normal(size=2)
@@ -37,19 +38,21 @@ def shifted(images, frames, rng, low, high, one=None):
         else:
             shift = np.asarray(one, float)
         out[k] = ndimage.shift(images[k], (shift[1], shift[0]), order=1)
+        out_valid[k] = ndimage.shift(valid[k].astype(np.uint8), (shift[1], shift[0]), order=0, cval=0) > 0
         truth[int(k)] = shift
-    return out, truth
+    return out, out_valid, truth
 
 
-def run_case(name, images, lights, mask, truth_normals, moved):
-    result = estimate_normals(images, lights, mask)
+def run_case(name, stack, lights, mask, truth_normals, moved):
+    images, valid = stack[:2]
+    result = estimate_normals(images, lights, mask, valid=valid)
     baseline = pinv_seconds(images, lights, mask)
 
     def without(keep):
-        return estimate_normals(images[keep], lights[keep], mask)
+        return estimate_normals(images[keep], lights[keep], mask, valid=valid[keep])
 
     start = time.perf_counter()
-    found = check_registration(images, result, lights, resolve=without)
+    found = check_registration(images, result, lights, valid, resolve=without)
     seconds = time.perf_counter() - start
     named = set(found.get("moved") or {})
     keep = np.ones(len(images), bool)
@@ -71,23 +74,24 @@ def main():
     wrong = 0
     for path in sorted(p for p in Path(args.diligent).iterdir() if (p / "filenames.txt").is_file()):
         obj = read_diligent(path)
-        images, lights, mask, truth = obj.load_images()[0], obj.directions, obj.mask, obj.normals_gt
+        # saturated observations left out, as the command line does
+        (images, valid), lights, mask, truth = obj.load_images(), obj.directions, obj.mask, obj.normals_gt
         count = len(images)
         rng = np.random.default_rng(args.seed)
         print(f"{obj.name} ({count} lights, {int(mask.sum())} px): error all / named left out (deg)")
-        wrong += run_case("none moved", images, lights, mask, truth, [])
+        wrong += run_case("none moved", (images, valid), lights, mask, truth, [])
         frames = np.sort(rng.choice(count, 10, replace=False))
-        wrong += run_case("10 frames by 1-6 px", shifted(images, frames, rng, 1, 6)[0], lights, mask, truth, frames)
+        wrong += run_case("10 frames by 1-6 px", shifted(images, valid, frames, rng, 1, 6), lights, mask, truth, frames)
         last = np.arange(count - 40, count)
-        wrong += run_case("last 40 by (2.0, -1.5) px", shifted(images, last, rng, 0, 0, one=(2.0, -1.5))[0], lights,
+        wrong += run_case("last 40 by (2.0, -1.5) px", shifted(images, valid, last, rng, 0, 0, one=(2.0, -1.5)), lights,
                           mask, truth, last)
         for size in (12, 16, 32):
             for _ in range(args.subsets):
                 keep = np.sort(rng.choice(count, size, replace=False))
-                sub, sub_lights = images[keep], lights[keep]
-                wrong += run_case(f"{size} lights, none moved", sub, sub_lights, mask, truth, [])
+                sub, sub_valid, sub_lights = images[keep], valid[keep], lights[keep]
+                wrong += run_case(f"{size} lights, none moved", (sub, sub_valid), sub_lights, mask, truth, [])
             frames = np.sort(rng.choice(size, 2, replace=False))
-            wrong += run_case(f"{size} lights, 2 by 1-4 px", shifted(sub, frames, rng, 1, 4)[0], sub_lights, mask,
+            wrong += run_case(f"{size} lights, 2 by 1-4 px", shifted(sub, sub_valid, frames, rng, 1, 4), sub_lights, mask,
                               truth, frames)
     print(f"frames named wrongly over every case: {wrong}")
 

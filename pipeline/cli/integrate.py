@@ -34,6 +34,9 @@ def register(subparsers):
                              "normals always are, with a note)")
     parser.add_argument("--albedo", help="with --normals: albedo image (EXR or PNG) for the "
                         "meshes' vertex colours and texture")
+    parser.add_argument("--uncertainty", help="with --normals: the normals' expected error in degrees (EXR, first "
+                        "channel; a session's normals/uncertainty.exr) for mesh.ply's per-vertex quality; default: "
+                        "uncertainty.exr beside the normal map, when there is one")
     IntegrateOptions.add_arguments(parser, first=("method", "k"))
     parser.add_argument("--force", action="store_true", help="rerun even if up to date")
     parser.set_defaults(func=run)
@@ -82,14 +85,35 @@ def _run_files(args, K, method, options):
     albedo = read_image(args.albedo) if args.albedo else None
     if albedo is not None and albedo.shape[:2] != normals.shape[:2]:
         raise InputError(f"{args.albedo}: size {albedo.shape[:2]} differs from {args.normals} {normals.shape[:2]}")
+    uncertainty, uncertainty_path = _read_uncertainty(args, normals.shape[:2])
     result = integrate_files(normals, mask, K, method, args.normals, **options)
     info = {"inputs": {"normals": str(Path(args.normals).resolve()),
                        "mask": str(Path(args.mask).resolve()) if args.mask else None,
-                       "albedo": str(Path(args.albedo).resolve()) if args.albedo else None}}
-    summary = write_depth_outputs(Path(args.out), result, normals, K, info, albedo, **mesh)
+                       "albedo": str(Path(args.albedo).resolve()) if args.albedo else None,
+                       "uncertainty": str(uncertainty_path.resolve()) if uncertainty_path else None}}
+    summary = write_depth_outputs(Path(args.out), result, normals, K, info, albedo, uncertainty=uncertainty, **mesh)
+    if uncertainty_path is not None:
+        found = "" if args.uncertainty else " (found beside the normal map)"
+        print(f"integrate: mesh.ply's vertex quality is the expected error from {uncertainty_path}{found}")
     result.warnings = summary["warnings"]
     _print(result, Path(args.out), summary["mesh"])
     return 0
+
+
+def _read_uncertainty(args, shape):
+    """The per-pixel expected error (H, W) for the PLY's quality and its file, or (None, None):
+    ``--uncertainty``, else ``uncertainty.exr`` beside the normal map when there is one."""
+    from ..core.imageio import read_image
+
+    path = Path(args.uncertainty) if args.uncertainty else Path(args.normals).with_name("uncertainty.exr")
+    if not path.is_file():
+        if args.uncertainty:
+            raise InputError(f"{path}: uncertainty map not found")
+        return None, None
+    values = read_image(path)[:, :, 0]
+    if values.shape != tuple(shape):
+        raise InputError(f"{path}: size {values.shape} differs from {args.normals} {tuple(shape)}")
+    return values, path
 
 
 def _read_normal_map(path):

@@ -409,6 +409,38 @@ def test_cli_normal_map_from_anywhere(tmp_path, capsys):
     assert not (tmp_path / "out2").exists()
 
 
+def test_cli_normal_map_from_anywhere_carries_its_uncertainty_into_the_ply(tmp_path, capsys):
+    from tests.pipeline.integrate.test_mesh_outputs import read_ply
+
+    mask = disc_mask((30, 40), (15, 20), 12)
+    rows, cols = np.indices(mask.shape, dtype=float)
+    folder = tmp_path / "normals"
+    folder.mkdir()
+    write_normal_png(folder / "n.png", normals_from_height(0.1 * np.ones(mask.shape), 0 * rows), mask)
+    write_mask(tmp_path / "m.png", mask)
+    expected = np.where(mask, 2.0 + cols / 10.0, np.nan).astype(np.float32)
+    write_image(tmp_path / "u.exr", expected[:, :, None])
+    code = main(["integrate", "--normals", str(folder / "n.png"), "--mask", str(tmp_path / "m.png"),
+                 "--uncertainty", str(tmp_path / "u.exr"), "--out", str(tmp_path / "out")])
+    assert code == 0 and "u.exr" in capsys.readouterr().out
+    header, vertices = read_ply(tmp_path / "out" / "mesh.ply")
+    assert "property float quality" in header
+    assert np.allclose(np.sort(vertices["quality"]), np.sort(expected[mask]))
+    recorded = yaml.safe_load((tmp_path / "out" / "integration.yaml").read_text())
+    assert recorded["inputs"]["uncertainty"] == str((tmp_path / "u.exr").resolve())
+    # a session's normals/ folder: uncertainty.exr beside the normal map is taken, and said
+    write_image(folder / "uncertainty.exr", expected[:, :, None])
+    assert main(["integrate", "--normals", str(folder / "n.png"), "--mask", str(tmp_path / "m.png"),
+                 "--out", str(tmp_path / "out2")]) == 0
+    assert "found beside the normal map" in capsys.readouterr().out
+    assert "property float quality" in read_ply(tmp_path / "out2" / "mesh.ply")[0]
+    # a wrong size is refused, naming the file
+    write_image(tmp_path / "small.exr", expected[:10, :10, None])
+    assert main(["integrate", "--normals", str(folder / "n.png"), "--uncertainty", str(tmp_path / "small.exr"),
+                 "--out", str(tmp_path / "out3")]) == 1
+    assert "small.exr: size" in capsys.readouterr().err
+
+
 def test_cli_session_mode_skips_when_current(tmp_path, capsys):
     session = make_session(tmp_path / "s", disc_mask((30, 40), (15, 20), 12))
     assert main(["integrate", str(session.root)]) == 0
