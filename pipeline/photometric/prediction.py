@@ -35,8 +35,9 @@ __all__ = ["held_out_prediction", "light_folds", "sample_window", "render", "pre
 
 #: fewer lights than this leave too few to fit once some are held back: the check is refused
 MIN_LIGHTS = 6
-#: object pixels of the sample grid at most
-SAMPLE_PIXELS = 20_000
+#: object pixels of the sample grid at most: the scores are sums over every lit observation of
+#: the grid, steady well below this; the refits' cost grows with it (docs, "Held-out lights")
+SAMPLE_PIXELS = 8_000
 #: an observation counts as lit above this fraction of the sample's bright level (99.5th
 #: percentile of the unsaturated observations): shadows are not predictions of a BRDF
 LIT_FRACTION = 0.02
