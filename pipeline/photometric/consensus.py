@@ -1,0 +1,178 @@
+"""Neighbour consensus of the selection's per-light decisions.
+
+The robust selection (:func:`pipeline.photometric.selection.select_robust`) decides, pixel by
+pixel, which of its observations to keep. Those decisions are spatially coherent: a cast
+shadow, a highlight or an interreflection covers a patch of the surface under one light, not a
+pixel. A pixel that keeps an observation most of its object neighbours rejected has usually
+kept an outlier its own residuals could not expose (a fit pulled toward it). So after the first
+pass, for a (2 r + 1) x (2 r + 1) window (:data:`pipeline.settings.normals.CONSENSUS_RADIUS`):
+an observation (pixel p, light k) that p kept is vetoed when more than
+:data:`pipeline.settings.normals.CONSENSUS_SHARE` of p's object neighbours (those in the
+window, p excluded; at least :data:`pipeline.settings.normals.CONSENSUS_MIN_NEIGHBOURS` of them)
+did not keep light k. The pixels with a vetoed observation are then selected and fitted again
+without it (the veto removes it from the usable observations, as a saturated one is, so the
+robust selection runs again on the rest); the others keep their first-pass result.
+
+The vote reads each pixel's own first-pass decision and its neighbours', and nothing else: the
+serial stage votes over the whole image (:func:`refine_run`), a tile over its pixels and a halo
+of neighbours around them (:func:`halo_pixels`), and both refit the same pixels with the same
+veto, so their normals are identical. Everything is vectorised: box sums over the (8, H, W)
+decisions of eight lights at a time (one byte of the packed decisions).
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ..settings.normals import CONSENSUS_MIN_NEIGHBOURS, CONSENSUS_RADIUS, CONSENSUS_SHARE
+from .engine import run_chunks
+
+__all__ = ["Veto", "box_sums", "consensus_veto", "halo_pixels", "vetoed_gatherer", "refine_run", "merge_maps",
+           "consensus_record", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS"]
+
+
+class Veto(NamedTuple):
+    """The observations the neighbours' vote removes.
+
+    Attributes
+    ----------
+    pixels : ndarray (A,) int
+        Flat indices (ascending) of the pixels with at least one vetoed observation.
+    bits : ndarray (A, ceil(K / 8)) uint8
+        Their vetoed observations, packed eight to a byte (``np.packbits`` along the lights).
+    count : int
+        Observations per pixel (K).
+    """
+
+    pixels: np.ndarray
+    bits: np.ndarray
+    count: int
+
+    def get(self, idx):
+        """The vetoed observations (n, K) bool of flat pixels ``idx`` (n,), which must be among ``pixels``."""
+        return np.unpackbits(self.bits[np.searchsorted(self.pixels, idx)], axis=1, count=self.count).astype(bool)
+
+    @property
+    def observations(self):
+        """How many observations the vote removed."""
+        return int(np.unpackbits(self.bits, axis=1).sum()) if self.bits.size else 0
+
+
+def box_sums(stack, radius):
+    """Sums over every (2 r + 1) x (2 r + 1) window, zero outside: (L, H, W) int32 of (L, H, W).
+
+    Integer cumulative sums, so the counts are exact (a float filter's rounding could tip a vote).
+    """
+    size = 2 * radius + 1
+    padded = np.zeros((stack.shape[0], stack.shape[1] + size, stack.shape[2] + size), np.int32)
+    padded[:, radius + 1:radius + 1 + stack.shape[1], radius + 1:radius + 1 + stack.shape[2]] = stack
+    np.cumsum(padded, axis=1, out=padded)
+    np.cumsum(padded, axis=2, out=padded)
+    return padded[:, size:, size:] - padded[:, :-size, size:] - padded[:, size:, :-size] + padded[:, :-size, :-size]
+
+
+def consensus_veto(bits, pixels, shape, count, radius=CONSENSUS_RADIUS, share=CONSENSUS_SHARE,
+                   min_neighbours=CONSENSUS_MIN_NEIGHBOURS):
+    """The neighbours' vote on the kept observations of ``pixels``.
+
+    Parameters
+    ----------
+    bits : ndarray (P, ceil(K / 8)) uint8
+        Each pixel's kept observations, packed (:class:`pipeline.photometric.engine.KeptSelection`).
+    pixels : ndarray (P,) int
+        Their flat indices in an image of ``shape`` (H, W), ascending; the object pixels the
+        vote counts as neighbours are these.
+    count : int
+        Observations per pixel (K).
+    radius, share, min_neighbours
+        The window's radius (1: 3 x 3), the share of the neighbours that must have rejected a
+        light (strictly more), and the neighbours a pixel needs for its vote to count.
+
+    Returns
+    -------
+    Veto
+        The pixels with a vetoed observation and those observations.
+    """
+    pixels = np.asarray(pixels)
+    if pixels.size == 0:
+        return Veto(pixels, bits[:0], count)
+    rows, cols = np.unravel_index(pixels, shape)
+    top, left = rows.min(), cols.min()
+    rows, cols = rows - top, cols - left
+    frame = (int(rows.max()) + 1, int(cols.max()) + 1)
+    obj = np.zeros((1,) + frame, np.uint8)
+    obj[0, rows, cols] = 1
+    neighbours = box_sums(obj, radius)[0, rows, cols] - 1
+    voting = neighbours >= min_neighbours
+    limit = share * neighbours
+    out = np.zeros_like(bits)
+    for byte in range(bits.shape[1]):
+        kept = np.unpackbits(bits[:, byte:byte + 1], axis=1)                       # (P, 8)
+        stack = np.zeros((8,) + frame, np.uint8)
+        stack[:, rows, cols] = kept.T
+        keepers = box_sums(stack, radius)[:, rows, cols].T - kept                   # (P, 8), p excluded
+        veto = (kept > 0) & voting[:, None] & ((neighbours[:, None] - keepers) > limit[:, None])
+        out[:, byte] = np.packbits(veto, axis=1)[:, 0]
+    hit = out.any(axis=1)
+    return Veto(pixels[hit], out[hit], count)
+
+
+def halo_pixels(mask, own, radius=CONSENSUS_RADIUS):
+    """The object pixels within ``radius`` (Chebyshev) of ``own`` but not among them.
+
+    Parameters
+    ----------
+    mask : ndarray (H, W) bool
+        The object (a window of it).
+    own : ndarray (n,) int
+        Flat indices of a tile's pixels in ``mask``.
+
+    Returns
+    -------
+    ndarray (m,) int
+        Flat indices of the halo, ascending: the neighbours whose decisions the tile's vote reads.
+    """
+    tile = np.zeros((1,) + mask.shape, np.uint8)
+    tile.reshape(-1)[own] = 1
+    near = (box_sums(tile, radius)[0] > 0) & mask
+    near.reshape(-1)[own] = False
+    return np.flatnonzero(near)
+
+
+def vetoed_gatherer(gather, veto):
+    """``gather`` with the vetoed observations of ``veto``'s pixels marked unusable (as saturated ones are)."""
+
+    def vetoed(idx):
+        obs, valid, lights = gather(idx)
+        usable = ~veto.get(idx)
+        return obs, usable if valid is None else valid & usable, lights
+
+    return vetoed
+
+
+def merge_maps(maps, refit, pixels):
+    """Copy the maps of ``refit`` (:func:`pipeline.photometric.engine.allocate_maps`' maps) at flat
+    ``pixels`` into ``maps``, in place."""
+    for key, values in maps.items():
+        flat = values.reshape((-1,) + values.shape[2:])
+        flat[pixels] = refit[key].reshape(flat.shape)[pixels]
+
+
+def refine_run(solver, gather, kept, shape, options, context, *, chunk_size, workers=None):
+    """The consensus round of a serial run: vote over ``kept`` (a complete
+    :class:`pipeline.photometric.engine.KeptSelection`), then select and fit the vetoed pixels
+    again with the run's ``context``. Returns (:class:`Veto`, their maps or None when none)."""
+    veto = consensus_veto(kept.bits, kept.pixels, shape, kept.count, CONSENSUS_RADIUS, CONSENSUS_SHARE,
+                          CONSENSUS_MIN_NEIGHBOURS)
+    if veto.pixels.size == 0:
+        return veto, None
+    again = run_chunks(solver, vetoed_gatherer(gather, veto), veto.pixels, shape, options, chunk_size=chunk_size,
+                       workers=workers, context=context)
+    return veto, again.maps
+
+
+def consensus_record(veto, pixels):
+    """What the result's options (and the stage record's ``selection``) say of the vote: the
+    observations it removed and the pixels solved again, of ``pixels`` object pixels."""
+    return {"radius": CONSENSUS_RADIUS, "share": CONSENSUS_SHARE, "observations_vetoed": veto.observations,
+            "pixels_refitted": int(veto.pixels.size), "of_pixels": int(pixels)}
