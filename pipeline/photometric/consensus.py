@@ -28,7 +28,7 @@ from ..settings.normals import CONSENSUS_MIN_NEIGHBOURS, CONSENSUS_RADIUS, CONSE
 from .engine import run_chunks
 
 __all__ = ["Veto", "box_sums", "consensus_veto", "halo_pixels", "vetoed_gatherer", "refine_run", "merge_maps",
-           "consensus_record", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS"]
+           "consensus_record", "chunk_pieces", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS"]
 
 
 class Veto(NamedTuple):
@@ -158,21 +158,32 @@ def merge_maps(maps, refit, pixels):
         flat[pixels] = refit[key].reshape(flat.shape)[pixels]
 
 
+def chunk_pieces(pixels, chunk, subset):
+    """``subset`` (ascending, among ``pixels``) cut where ``pixels`` is cut into chunks of
+    ``chunk``: the pixels of each first-pass chunk that are solved again, as one chunk. So a pixel
+    is refitted beside the same pixels in the serial stage and in a tile (whose chunks are the
+    serial stage's), and gets the same last bits."""
+    order = np.searchsorted(pixels, subset) // chunk
+    cuts = np.flatnonzero(np.diff(order)) + 1
+    return [part for part in np.split(subset, cuts) if part.size]
+
+
 def refine_run(solver, gather, kept, shape, options, context, *, chunk_size, workers=None):
     """The consensus round of a serial run: vote over ``kept`` (a complete
     :class:`pipeline.photometric.engine.KeptSelection`), then select and fit the vetoed pixels
-    again with the run's ``context``. Returns (:class:`Veto`, their maps or None when none)."""
+    again with the run's ``context``, each first-pass chunk's vetoed pixels as one chunk
+    (:func:`chunk_pieces`). Returns (:class:`Veto`, their maps or None when none)."""
     veto = consensus_veto(kept.bits, kept.pixels, shape, kept.count, CONSENSUS_RADIUS, CONSENSUS_SHARE,
                           CONSENSUS_MIN_NEIGHBOURS)
     if veto.pixels.size == 0:
         return veto, None
     again = run_chunks(solver, vetoed_gatherer(gather, veto), veto.pixels, shape, options, chunk_size=chunk_size,
-                       workers=workers, context=context)
+                       workers=workers, context=context, pieces=chunk_pieces(kept.pixels, chunk_size, veto.pixels))
     return veto, again.maps
 
 
-def consensus_record(veto, pixels):
+def consensus_record(observations, refitted, pixels):
     """What the result's options (and the stage record's ``selection``) say of the vote: the
-    observations it removed and the pixels solved again, of ``pixels`` object pixels."""
-    return {"radius": CONSENSUS_RADIUS, "share": CONSENSUS_SHARE, "observations_vetoed": veto.observations,
-            "pixels_refitted": int(veto.pixels.size), "of_pixels": int(pixels)}
+    ``observations`` it removed and the pixels ``refitted``, of ``pixels`` object pixels."""
+    return {"radius": CONSENSUS_RADIUS, "share": CONSENSUS_SHARE, "observations_vetoed": int(observations),
+            "pixels_refitted": int(refitted), "of_pixels": int(pixels)}

@@ -346,7 +346,7 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
                                     chunk_size=chunk_size, workers=workers)
             if maps is not None:
                 merge_maps(done.maps, maps, veto.pixels)
-            votes.append(consensus_record(veto, len(pixels)))
+            votes.append(consensus_record(veto.observations, veto.pixels.size, len(pixels)))
         return done
 
     def later_context(run_lights, reuse=None):

@@ -38,6 +38,8 @@ from ..core.jit import single_threaded
 from ..core.paths import LIGHTS, TILES_SCRATCH
 from ..core.session import Session
 from .anchor import first_verdict
+from .consensus import (CONSENSUS_MIN_NEIGHBOURS, CONSENSUS_RADIUS, CONSENSUS_SHARE, Veto, chunk_pieces,
+                        consensus_record, consensus_veto, halo_pixels, vetoed_gatherer)
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)
 from .estimate import check_lights, check_plan_frames, plan_solve, result_from_maps
@@ -242,20 +244,82 @@ def run_tile(plan, tile, hook=None):
     local = np.flatnonzero(mask[r0:r1])[skip:skip + count]
     solve = plan.solve
     phases = phases_of(solve.solver)
-    pieces = []
+    pieces, kept = [], []
+    votes = {}
     # one BLAS thread: a Dask worker is one core's worth of work
     with single_threaded():
         for start in range(0, len(local), plan.chunk):
             idx = local[start:start + plan.chunk]
             picked = phases.select(*_finite(gather(idx), plan, r0, r1), context=plan.context, **solve.options)
             pieces.append(solve_chunk(phases, picked, plan.context, solve.options, solve.anchor))
+            if solve.votes and "weights" in picked:
+                kept.append(np.packbits(picked["weights"] > 0, axis=1))
+        if solve.votes and pieces and len(kept) == len(pieces):
+            votes = _tile_consensus(plan, tile, local, np.concatenate(kept), pieces, gather, phases)
     if hook is not None:
         hook(plan, tile)
     keys = tuple(key for key in CHUNK_KEYS if pieces and key in pieces[0]) + (("mismatch",) if solve.anchor else ())
     arrays = {key: np.concatenate([p[key] for p in pieces]) for key in keys} if pieces else {}
     with atomic_path(target) as tmp:
-        np.savez(tmp, idx=local + r0 * width, **arrays)
+        np.savez(tmp, idx=local + r0 * width, **arrays, **votes)
     return str(target)
+
+
+def _tile_consensus(plan, tile, local, bits, pieces, gather, phases):
+    """The neighbour consensus of one tile (:mod:`pipeline.photometric.consensus`), in place on its
+    solved ``pieces`` (one per chunk); returns the counts the tile file keeps.
+
+    The vote of a tile pixel reads its neighbours' first-pass decisions: the halo, the object
+    pixels within the window's radius outside the tile, lies in the chunks before and after it,
+    which are selected here as whole chunks (the serial stage's chunks, so each halo pixel's
+    decisions are the serial stage's to the last bit). The vetoed pixels of each of the tile's
+    chunks are then selected and fitted again as one chunk, as the serial stage does
+    (:func:`pipeline.photometric.consensus.chunk_pieces`); the specular-peak mismatches stay the
+    first pass's.
+    """
+    p0, r0, r1, skip, count = tile
+    solve, chunk, radius = plan.solve, plan.chunk, CONSENSUS_RADIUS
+    stack = np.load(plan.scratch("stack.npy"), mmap_mode="r")
+    valid = np.load(plan.scratch("valid.npy"), mmap_mode="r")
+    mask = np.load(plan.scratch("mask.npy"), mmap_mode="r")
+    k, height, width = stack.shape
+    before = np.concatenate([[0], np.cumsum(np.count_nonzero(mask, axis=1))])   # object pixels before each row
+    h0, h1 = max(r0 - radius, 0), min(r1 + radius, height)
+    window = np.asarray(mask[h0:h1])
+    in_window = np.flatnonzero(window)                     # object pixels of the window, in order
+    own = local + (r0 - h0) * width
+    halo = halo_pixels(window, own, radius)
+    order = before[h0] + np.searchsorted(in_window, halo)  # the halo's places among the object pixels
+    halo_bits = np.zeros((len(halo), bits.shape[1]), np.uint8)
+    for c in np.unique(order // chunk):
+        # chunk c of the serial stage: object pixels c * chunk .. in rows [a, b)
+        first, last = c * chunk, min((c + 1) * chunk, int(before[-1])) - 1
+        a = int(np.searchsorted(before, first, side="right")) - 1
+        b = int(np.searchsorted(before, last, side="right"))
+        idx = np.flatnonzero(mask[a:b])[first - before[a]:last + 1 - before[a]]
+        near = gatherer(stack[:, a:b].reshape(k, -1), valid[:, a:b].reshape(k, -1), solve.solver_lights,
+                        offset=a * width, gains=solve.gains)
+        picked = phases.select(*_finite(near(idx), plan, a, b), context=plan.context, **solve.options)
+        weights = np.packbits(picked["weights"] > 0, axis=1)
+        mine = (order >= first) & (order <= last)
+        halo_bits[mine] = weights[order[mine] - first]
+    pixels = np.concatenate([own, halo])
+    sort = np.argsort(pixels)
+    veto = consensus_veto(np.concatenate([bits, halo_bits])[sort], pixels[sort], window.shape, k, radius,
+                          CONSENSUS_SHARE, CONSENSUS_MIN_NEIGHBOURS)
+    on_tile = np.isin(veto.pixels, own, assume_unique=True)
+    # in the tile gather's numbering (rows from r0)
+    veto = Veto(veto.pixels[on_tile] - (r0 - h0) * width, veto.bits[on_tile], k)
+    vetoed = vetoed_gatherer(gather, veto)
+    for idx in chunk_pieces(local, chunk, veto.pixels):
+        piece = pieces[int(np.searchsorted(local, idx[0])) // chunk]
+        rows = np.searchsorted(local, idx) % chunk
+        picked = phases.select(*_finite(vetoed(idx), plan, r0, r1), context=plan.context, **solve.options)
+        again = solve_chunk(phases, picked, plan.context, solve.options, False)
+        for key in CHUNK_KEYS:
+            if key in piece:
+                piece[key][rows] = again[key]
+    return {"vetoed": np.int64(veto.observations), "refitted": np.int64(veto.pixels.size)}
 
 
 def _finite(gathered, plan, r0, r1):
@@ -285,6 +349,7 @@ def assemble_normals(plan, tile_paths=None, **record):
         return WHOLE_IMAGE
     mask = np.load(plan.scratch("mask.npy"))
     out, mismatch = None, []
+    vetoed = refitted = 0
     for tile in plan.tiles:
         path = plan.scratch(f"tile-{tile[0]:010d}.npz")
         if not path.is_file():
@@ -293,12 +358,16 @@ def assemble_normals(plan, tile_paths=None, **record):
             if tile["idx"].size == 0:
                 continue
             chunk = {key: tile[key] for key in CHUNK_KEYS if key in tile}
+            if "vetoed" in tile:
+                vetoed, refitted = vetoed + int(tile["vetoed"]), refitted + int(tile["refitted"])
             if out is None:
                 out = allocate_maps(mask.shape, chunk["params"].shape[1])
             scatter_chunk(out, tile["idx"], chunk)
             if plan.anchor:
                 mismatch.append(tile["mismatch"])
     options = dict(plan.solve.options, frame_check=plan.solve.gain_check)
+    if plan.solve.votes:
+        options["neighbour_consensus"] = consensus_record(vetoed, refitted, int(mask.sum()))
     if plan.anchor:
         verdict = first_verdict(np.concatenate(mismatch) if mismatch else np.zeros(0))
         if verdict["anchor"] == "to correct":
