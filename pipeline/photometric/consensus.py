@@ -24,11 +24,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..settings.normals import CONSENSUS_MIN_NEIGHBOURS, CONSENSUS_RADIUS, CONSENSUS_SHARE
-from .engine import run_chunks
+from ..settings.normals import CONSENSUS_MIN_NEIGHBOURS, CONSENSUS_RADIUS, CONSENSUS_ROUNDS, CONSENSUS_SHARE
+from .engine import KeptSelection, run_chunks
 
 __all__ = ["Veto", "box_sums", "consensus_veto", "halo_pixels", "vetoed_gatherer", "refine_run", "merge_maps",
-           "consensus_record", "chunk_pieces", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS"]
+           "consensus_record", "chunk_pieces", "vote_rounds", "CONSENSUS_ROUNDS", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS"]
 
 
 class Veto(NamedTuple):
@@ -168,22 +168,68 @@ def chunk_pieces(pixels, chunk, subset):
     return [part for part in np.split(subset, cuts) if part.size]
 
 
+def vote_rounds(bits, pixels, shape, count, refit, rounds=None):
+    """The neighbours' vote, ``rounds`` times (:data:`pipeline.settings.normals.CONSENSUS_ROUNDS`).
+
+    Each round votes on the current decisions (:func:`consensus_veto`); the pixels with a vetoed
+    observation are selected again without every observation vetoed at them so far, and their new
+    decisions are the next round's. A pixel no round vetoes keeps its first-pass result.
+
+    Parameters
+    ----------
+    bits : ndarray (P, ceil(K / 8)) uint8
+        The first-pass decisions of ``pixels`` (flat, ascending, in an image of ``shape``).
+    count : int
+        Observations per pixel (K).
+    refit : callable
+        ``refit(veto)`` selects (and fits) ``veto.pixels`` again without ``veto``'s observations and
+        returns their new decisions (A, ceil(K / 8)) uint8.
+
+    Returns
+    -------
+    Veto
+        Every pixel refitted, with all the observations vetoed at it.
+    """
+    rounds = CONSENSUS_ROUNDS if rounds is None else rounds
+    bits = bits.copy()
+    vetoed = np.zeros_like(bits)
+    touched = np.zeros(len(pixels), bool)
+    for _ in range(rounds):
+        veto = consensus_veto(bits, pixels, shape, count, CONSENSUS_RADIUS, CONSENSUS_SHARE, CONSENSUS_MIN_NEIGHBOURS)
+        if veto.pixels.size == 0:
+            break
+        rows = np.searchsorted(pixels, veto.pixels)
+        vetoed[rows] |= veto.bits
+        touched[rows] = True
+        bits[rows] = refit(Veto(veto.pixels, vetoed[rows], count))
+    return Veto(pixels[touched], vetoed[touched], count)
+
+
 def refine_run(solver, gather, kept, shape, options, context, *, chunk_size, workers=None):
-    """The consensus round of a serial run: vote over ``kept`` (a complete
-    :class:`pipeline.photometric.engine.KeptSelection`), then select and fit the vetoed pixels
+    """The consensus rounds of a serial run (:func:`vote_rounds`) over ``kept`` (a complete
+    :class:`pipeline.photometric.engine.KeptSelection`): the vetoed pixels are selected and fitted
     again with the run's ``context``, each first-pass chunk's vetoed pixels as one chunk
-    (:func:`chunk_pieces`). Returns (:class:`Veto`, their maps or None when none)."""
-    veto = consensus_veto(kept.bits, kept.pixels, shape, kept.count, CONSENSUS_RADIUS, CONSENSUS_SHARE,
-                          CONSENSUS_MIN_NEIGHBOURS)
-    if veto.pixels.size == 0:
-        return veto, None
-    again = run_chunks(solver, vetoed_gatherer(gather, veto), veto.pixels, shape, options, chunk_size=chunk_size,
-                       workers=workers, context=context, pieces=chunk_pieces(kept.pixels, chunk_size, veto.pixels))
-    return veto, again.maps
+    (:func:`chunk_pieces`). Returns (:class:`Veto`, the refitted pixels' maps or None when none)."""
+    maps = {}
+
+    def refit(veto):
+        new = KeptSelection(veto.pixels, veto.count)
+        again = run_chunks(solver, vetoed_gatherer(gather, veto), veto.pixels, shape, options,
+                           chunk_size=chunk_size, workers=workers, context=context, keep=new,
+                           pieces=chunk_pieces(kept.pixels, chunk_size, veto.pixels))
+        if maps:
+            merge_maps(maps, again.maps, veto.pixels)
+        else:
+            maps.update(again.maps)
+        return new.bits
+
+    veto = vote_rounds(kept.bits, kept.pixels, shape, kept.count, refit)
+    return veto, maps or None
 
 
 def consensus_record(observations, refitted, pixels):
     """What the result's options (and the stage record's ``selection``) say of the vote: the
     ``observations`` it removed and the pixels ``refitted``, of ``pixels`` object pixels."""
-    return {"radius": CONSENSUS_RADIUS, "share": CONSENSUS_SHARE, "observations_vetoed": int(observations),
+    return {"radius": CONSENSUS_RADIUS, "share": CONSENSUS_SHARE, "rounds": CONSENSUS_ROUNDS,
+            "observations_vetoed": int(observations),
             "pixels_refitted": int(refitted), "of_pixels": int(pixels)}

@@ -38,8 +38,8 @@ from ..core.jit import single_threaded
 from ..core.paths import LIGHTS, TILES_SCRATCH
 from ..core.session import Session
 from .anchor import first_verdict
-from .consensus import (CONSENSUS_MIN_NEIGHBOURS, CONSENSUS_RADIUS, CONSENSUS_SHARE, Veto, chunk_pieces,
-                        consensus_record, consensus_veto, halo_pixels, vetoed_gatherer)
+from .consensus import (CONSENSUS_RADIUS, CONSENSUS_ROUNDS, Veto, consensus_record, halo_pixels, vetoed_gatherer,
+                        vote_rounds)
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)
 from .estimate import check_lights, check_plan_frames, plan_solve, result_from_maps
@@ -269,57 +269,74 @@ def _tile_consensus(plan, tile, local, bits, pieces, gather, phases):
     """The neighbour consensus of one tile (:mod:`pipeline.photometric.consensus`), in place on its
     solved ``pieces`` (one per chunk); returns the counts the tile file keeps.
 
-    The vote of a tile pixel reads its neighbours' first-pass decisions: the halo, the object
-    pixels within the window's radius outside the tile, lies in the chunks before and after it,
-    which are selected here as whole chunks (the serial stage's chunks, so each halo pixel's
-    decisions are the serial stage's to the last bit). The vetoed pixels of each of the tile's
-    chunks are then selected and fitted again as one chunk, as the serial stage does
-    (:func:`pipeline.photometric.consensus.chunk_pieces`); the specular-peak mismatches stay the
-    first pass's.
+    Each round's vote at a pixel reads its neighbours' decisions of the round before, so after
+    R rounds of radius r the tile's pixels depend on the first-pass decisions within R r of them:
+    that halo, with the tile, is voted on here, every round, as the serial stage votes on the
+    whole image. Its pixels lie in the chunks before and after the tile, which are selected as
+    whole chunks (the serial stage's); in each round the vetoed pixels of each chunk are selected
+    (and, the tile's own, fitted) again as one chunk, as the serial stage does
+    (:func:`pipeline.photometric.consensus.chunk_pieces`). The halo's outer pixels miss
+    neighbours, and their votes may differ from the serial stage's, but the rounds carry a
+    difference inward by r a round at most: never into the tile. The specular-peak mismatches
+    stay the first pass's.
     """
     p0, r0, r1, skip, count = tile
-    solve, chunk, radius = plan.solve, plan.chunk, CONSENSUS_RADIUS
+    solve, chunk = plan.solve, plan.chunk
+    reach = CONSENSUS_RADIUS * CONSENSUS_ROUNDS
     stack = np.load(plan.scratch("stack.npy"), mmap_mode="r")
     valid = np.load(plan.scratch("valid.npy"), mmap_mode="r")
     mask = np.load(plan.scratch("mask.npy"), mmap_mode="r")
     k, height, width = stack.shape
     before = np.concatenate([[0], np.cumsum(np.count_nonzero(mask, axis=1))])   # object pixels before each row
-    h0, h1 = max(r0 - radius, 0), min(r1 + radius, height)
-    window = np.asarray(mask[h0:h1])
-    in_window = np.flatnonzero(window)                     # object pixels of the window, in order
-    own = local + (r0 - h0) * width
-    halo = halo_pixels(window, own, radius)
-    order = before[h0] + np.searchsorted(in_window, halo)  # the halo's places among the object pixels
-    halo_bits = np.zeros((len(halo), bits.shape[1]), np.uint8)
-    for c in np.unique(order // chunk):
-        # chunk c of the serial stage: object pixels c * chunk .. in rows [a, b)
-        first, last = c * chunk, min((c + 1) * chunk, int(before[-1])) - 1
-        a = int(np.searchsorted(before, first, side="right")) - 1
-        b = int(np.searchsorted(before, last, side="right"))
-        idx = np.flatnonzero(mask[a:b])[first - before[a]:last + 1 - before[a]]
-        near = gatherer(stack[:, a:b].reshape(k, -1), valid[:, a:b].reshape(k, -1), solve.solver_lights,
-                        offset=a * width, gains=solve.gains)
-        picked = phases.select(*_finite(near(idx), plan, a, b), context=plan.context, **solve.options)
-        weights = np.packbits(picked["weights"] > 0, axis=1)
-        mine = (order >= first) & (order <= last)
-        halo_bits[mine] = weights[order[mine] - first]
-    pixels = np.concatenate([own, halo])
+    total = int(before[-1])
+    h0, h1 = max(r0 - reach, 0), min(r1 + reach, height)
+    near = halo_pixels(np.asarray(mask[h0:h1]), local + (r0 - h0) * width, reach)
+    order = before[h0] + np.searchsorted(np.flatnonzero(mask[h0:h1]), near)    # the halo's places in the serial order
+    chunks = np.unique(order // chunk)
+    # the rows of the tile and of the halo's whole chunks: one gatherer over them
+    a = min(r0, int(np.searchsorted(before, chunks.min() * chunk, side="right")) - 1) if chunks.size else r0
+    b = max(r1, int(np.searchsorted(before, min((chunks.max() + 1) * chunk, total) - 1, side="right"))) \
+        if chunks.size else r1
+    in_rows = np.flatnonzero(mask[a:b])                  # object pixels of rows [a, b), in the serial order
+    start = int(before[a])
+    wide = gatherer(stack[:, a:b].reshape(k, -1), valid[:, a:b].reshape(k, -1), solve.solver_lights,
+                    offset=a * width, gains=solve.gains)
+    own = local + (r0 - a) * width
+    halo_bits = []
+    halo = []
+    for c in chunks:
+        first, last = c * chunk, min((c + 1) * chunk, total)
+        idx = in_rows[first - start:last - start]
+        picked = phases.select(*_finite(wide(idx), plan, a, b), context=plan.context, **solve.options)
+        halo.append(idx)
+        halo_bits.append(np.packbits(picked["weights"] > 0, axis=1))
+    pixels = np.concatenate([own] + halo)
     sort = np.argsort(pixels)
-    veto = consensus_veto(np.concatenate([bits, halo_bits])[sort], pixels[sort], window.shape, k, radius,
-                          CONSENSUS_SHARE, CONSENSUS_MIN_NEIGHBOURS)
-    on_tile = np.isin(veto.pixels, own, assume_unique=True)
-    # in the tile gather's numbering (rows from r0)
-    veto = Veto(veto.pixels[on_tile] - (r0 - h0) * width, veto.bits[on_tile], k)
-    vetoed = vetoed_gatherer(gather, veto)
-    for idx in chunk_pieces(local, chunk, veto.pixels):
-        piece = pieces[int(np.searchsorted(local, idx[0])) // chunk]
-        rows = np.searchsorted(local, idx) % chunk
-        picked = phases.select(*_finite(vetoed(idx), plan, r0, r1), context=plan.context, **solve.options)
-        again = solve_chunk(phases, picked, plan.context, solve.options, False)
-        for key in CHUNK_KEYS:
-            if key in piece:
-                piece[key][rows] = again[key]
-    return {"vetoed": np.int64(veto.observations), "refitted": np.int64(veto.pixels.size)}
+    pixels, decided = pixels[sort], np.concatenate([bits] + halo_bits)[sort]
+    serial_order = start + np.searchsorted(in_rows, pixels)
+
+    def refit(veto):
+        vetoed = vetoed_gatherer(wide, veto)
+        out = np.empty_like(veto.bits)
+        at = serial_order[np.searchsorted(pixels, veto.pixels)]
+        for group in np.split(np.arange(len(at)), np.flatnonzero(np.diff(at // chunk)) + 1):
+            idx = veto.pixels[group]
+            picked = phases.select(*_finite(vetoed(idx), plan, a, b), context=plan.context, **solve.options)
+            out[group] = np.packbits(picked["weights"] > 0, axis=1)
+            if p0 <= at[group[0]] < p0 + count:          # the tile's own chunk: fitted again
+                again = solve_chunk(phases, picked, plan.context, solve.options, False)
+                piece = pieces[(int(at[group[0]]) - p0) // chunk]
+                rows = at[group] - p0 - (int(at[group[0]]) - p0) // chunk * chunk
+                for key in CHUNK_KEYS:
+                    if key in piece:
+                        piece[key][rows] = again[key]
+        return out
+
+    veto = vote_rounds(decided, pixels, (b - a, width), k, refit)
+    mine = (serial_order[np.searchsorted(pixels, veto.pixels)] >= p0) & \
+        (serial_order[np.searchsorted(pixels, veto.pixels)] < p0 + count)
+    return {"vetoed": np.int64(Veto(veto.pixels[mine], veto.bits[mine], k).observations),
+            "refitted": np.int64(mine.sum())}
 
 
 def _finite(gathered, plan, r0, r1):

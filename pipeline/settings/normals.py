@@ -15,7 +15,7 @@ from ..core.options import Options, option
 
 __all__ = ["SelectionOptions", "EstimateOptions", "BiquadraticOptions", "AlternationOptions", "NormalsOptions",
            "T_SHADOW", "WIDE_T_SHADOW", "WIDE_T_LOW", "WIDE_SPREAD_DEG", "REJECT_K", "SHAPE_PRIOR", "MAX_ITER", "TOL_DEG", "CONSENSUS", "UNCERTAIN_DEG", "FOLDS",
-           "SCALE_FLOOR", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS",
+           "SCALE_FLOOR", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS", "CONSENSUS_ROUNDS",
            "parse_fraction"]
 
 #: observations below this fraction of the pixel's 90th-percentile intensity are shadows
@@ -38,8 +38,10 @@ CONSENSUS = 48
 #: the neighbour consensus (:mod:`pipeline.photometric.consensus`): an observation a pixel kept is
 #: vetoed when more than CONSENSUS_SHARE of its object neighbours in the (2 r + 1)-pixel square
 #: window (r = CONSENSUS_RADIUS) rejected it, and the pixel has at least CONSENSUS_MIN_NEIGHBOURS
-#: of them (a strict majority of 3 x 3: docs/photometric-stereo.md, "Neighbour consensus")
+#: of them (a strict majority of 3 x 3: docs/photometric-stereo.md, "Neighbour consensus"); the
+#: vote is taken CONSENSUS_ROUNDS times, each on the decisions the last one left
 CONSENSUS_RADIUS = 1
+CONSENSUS_ROUNDS = 2
 CONSENSUS_SHARE = 0.5
 CONSENSUS_MIN_NEIGHBOURS = 3
 #: folds over the lights of the held-out-light check (each light is held back once;

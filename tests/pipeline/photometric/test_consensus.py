@@ -67,7 +67,7 @@ def test_few_neighbours_do_not_vote_and_a_halo_is_the_ring_around_a_tile():
 
 def glossy_session(folder, name, size=72, count=16):
     """A glossy hemisphere (about 3000 object pixels: two solver chunks, so two tiles) under a
-    cone of lights, with a shadow band that the pixels of a patch see under a few lights."""
+    cone of lights, with ragged cast shadows under a few of them."""
     normals, mask = sphere(size)
     azimuth = np.linspace(0, 2 * np.pi, count, endpoint=False)
     polar = np.radians(np.where(np.arange(count) % 2, 20.0, 35.0))
@@ -76,12 +76,13 @@ def glossy_session(folder, name, size=72, count=16):
     src.mkdir(parents=True)
     half = dirs + [0.0, 0.0, 1.0]
     half /= np.linalg.norm(half, axis=1, keepdims=True)
-    rows = np.arange(size)[:, None] + np.zeros(size, int)
+    rng = np.random.default_rng(3)
     for k, light in enumerate(dirs):
         diffuse = np.clip(normals @ light, 0, None)
         gloss = 0.3 * np.clip(normals @ half[k], 0, None) ** 20 * (diffuse > 0)
-        # a cast shadow over rows 30-41 under every fourth light: dimmed, not black
-        shadow = np.where((k % 4 == 0) & (rows >= 30) & (rows < 42), 0.45, 1.0)
+        # ragged cast shadows (patches of 2 x 2 pixels) under every third light: dimmed, not black
+        patches = np.kron(rng.random((size // 2 + 1, size // 2 + 1)) < 0.5, np.ones((2, 2)))[:size, :size]
+        shadow = np.where((k % 3 == 0) & (patches > 0), 0.45, 1.0)
         image = np.clip((0.6 * diffuse * shadow + gloss) * mask, 0, 1)
         write_image(src / f"img{k + 1:02d}.png", np.repeat(image[..., None], 3, axis=2))
     (src / "lights.txt").write_text("".join(f"{x} {y} {z}\n" for x, y, z in dirs))
