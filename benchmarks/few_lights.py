@@ -1,6 +1,7 @@
 """Photometric stereo with few lights: random 4- to 16-light subsets of the DiLiGenT objects.
 
     python benchmarks/few_lights.py [DILIGENT_DIR] [--counts 4,6,8,12,16] [--subsets 5] [--seed 0]
+                                    [--neighbour-consensus on|off]
 
 For every object found and every light count, ``--subsets`` random subsets of its lights (fixed
 seeds: the subsets of count c of object number j are drawn with seed ``seed + 1000 c + 100 j``)
@@ -34,12 +35,14 @@ def subsets(count, lights, n, seed):
     return [np.sort(rng.choice(lights, count, replace=False)) for _ in range(n)]
 
 
-def solve(images, valid, obj, chosen):
-    """Each method's errors (H, W) over the mask and where it gives a normal (H, W) bool."""
+def solve(images, valid, obj, chosen, options=None):
+    """Each method's errors (H, W) over the mask and where it gives a normal (H, W) bool;
+    ``options`` are the default method's."""
     found = {}
     for method in METHODS:
+        given = (options or {}) if method == "biquadratic" else {}
         normals = estimate_normals(images[chosen], obj.directions[chosen], obj.mask, method=method,
-                                   valid=valid[chosen]).normals
+                                   valid=valid[chosen], **given).normals
         errors = np.zeros(obj.mask.shape)
         errors[obj.mask] = angular_error_deg(normals, obj.normals_gt, obj.mask)
         found[method] = (errors, obj.mask & (np.linalg.norm(normals, axis=2) > 0))
@@ -52,6 +55,8 @@ def main(argv=None):
     parser.add_argument("--counts", default="4,6,8,12,16")
     parser.add_argument("--subsets", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--neighbour-consensus", choices=("on", "off"), default="on",
+                        help="the default's neighbour consensus (on, its default)")
     args = parser.parse_args(argv)
     objects = [read_diligent(p) for p in sorted(Path(args.data).iterdir()) if (p / "filenames.txt").is_file()]
     stacks = [obj.load_images() for obj in objects]
@@ -61,7 +66,7 @@ def main(argv=None):
         errors, common, cover = {m: [] for m in METHODS}, [], []
         for j, (obj, (images, valid)) in enumerate(zip(objects, stacks)):
             for i, chosen in enumerate(subsets(count, len(images), args.subsets, args.seed + 1000 * count + 100 * j)):
-                found = solve(images, valid, obj, chosen)
+                found = solve(images, valid, obj, chosen, {"neighbour_consensus": args.neighbour_consensus == "on"})
                 shared = np.logical_and.reduce([has for _, has in found.values()])
                 row = {m: float(found[m][0][obj.mask].mean()) for m in METHODS}
                 # no pixel in common: lights too close to coplanar for every method (NaN, left out)

@@ -11,13 +11,15 @@ an observation (pixel p, light k) that p kept is vetoed when more than
 window, p excluded; at least :data:`pipeline.settings.normals.CONSENSUS_MIN_NEIGHBOURS` of them)
 did not keep light k. The pixels with a vetoed observation are then selected and fitted again
 without it (the veto removes it from the usable observations, as a saturated one is, so the
-robust selection runs again on the rest); the others keep their first-pass result.
+robust selection runs again on the rest); the others keep their first-pass result. The vote is
+taken :data:`pipeline.settings.normals.CONSENSUS_ROUNDS` times, each on the decisions the last
+round left (:func:`vote_rounds`).
 
-The vote reads each pixel's own first-pass decision and its neighbours', and nothing else: the
-serial stage votes over the whole image (:func:`refine_run`), a tile over its pixels and a halo
-of neighbours around them (:func:`halo_pixels`), and both refit the same pixels with the same
-veto, so their normals are identical. Everything is vectorised: box sums over the (8, H, W)
-decisions of eight lights at a time (one byte of the packed decisions).
+The vote reads each pixel's own decisions and its neighbours', and nothing else: the serial
+stage votes over the whole image (:func:`refine_run`), a tile over its pixels and a halo of
+neighbours around them (:func:`halo_pixels`, rounds x radius wide), and both refit the same
+pixels with the same veto, so their normals are identical. Everything is vectorised: box sums
+over the (8, H, W) decisions of eight lights at a time (one byte of the packed decisions).
 """
 
 from typing import NamedTuple
@@ -25,10 +27,10 @@ from typing import NamedTuple
 import numpy as np
 
 from ..settings.normals import CONSENSUS_MIN_NEIGHBOURS, CONSENSUS_RADIUS, CONSENSUS_ROUNDS, CONSENSUS_SHARE
-from .engine import KeptSelection, run_chunks
+from .engine import NO_NORMAL, KeptSelection, allocate_maps, run_chunks
 
 __all__ = ["Veto", "box_sums", "consensus_veto", "halo_pixels", "vetoed_gatherer", "refine_run", "merge_maps",
-           "consensus_record", "chunk_pieces", "vote_rounds", "CONSENSUS_ROUNDS", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS"]
+           "consensus_record", "chunk_pieces", "vote_rounds", "solved", "CONSENSUS_ROUNDS", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS"]
 
 
 class Veto(NamedTuple):
@@ -173,7 +175,9 @@ def vote_rounds(bits, pixels, shape, count, refit, rounds=None):
 
     Each round votes on the current decisions (:func:`consensus_veto`); the pixels with a vetoed
     observation are selected again without every observation vetoed at them so far, and their new
-    decisions are the next round's. A pixel no round vetoes keeps its first-pass result.
+    decisions are the next round's. A pixel no round vetoes keeps its first-pass result; one whose
+    refit determines no normal keeps its last result and takes no further part (the vote must not
+    take a pixel's normal away: its observations left too few, or too close to coplanar).
 
     Parameters
     ----------
@@ -183,7 +187,8 @@ def vote_rounds(bits, pixels, shape, count, refit, rounds=None):
         Observations per pixel (K).
     refit : callable
         ``refit(veto)`` selects (and fits) ``veto.pixels`` again without ``veto``'s observations and
-        returns their new decisions (A, ceil(K / 8)) uint8.
+        returns their new decisions (A, ceil(K / 8)) uint8 and which of them it took (A,) bool (a
+        normal found: :func:`solved`); it keeps the results of those only.
 
     Returns
     -------
@@ -193,16 +198,25 @@ def vote_rounds(bits, pixels, shape, count, refit, rounds=None):
     rounds = CONSENSUS_ROUNDS if rounds is None else rounds
     bits = bits.copy()
     vetoed = np.zeros_like(bits)
-    touched = np.zeros(len(pixels), bool)
+    touched, frozen = np.zeros(len(pixels), bool), np.zeros(len(pixels), bool)
     for _ in range(rounds):
         veto = consensus_veto(bits, pixels, shape, count, CONSENSUS_RADIUS, CONSENSUS_SHARE, CONSENSUS_MIN_NEIGHBOURS)
-        if veto.pixels.size == 0:
-            break
         rows = np.searchsorted(pixels, veto.pixels)
-        vetoed[rows] |= veto.bits
-        touched[rows] = True
-        bits[rows] = refit(Veto(veto.pixels, vetoed[rows], count))
+        live = ~frozen[rows]
+        rows = rows[live]
+        if rows.size == 0:
+            break
+        trial = vetoed[rows] | veto.bits[live]
+        new, took = refit(Veto(pixels[rows], trial, count))
+        vetoed[rows[took]], bits[rows[took]] = trial[took], new[took]
+        touched[rows[took]] = True
+        frozen[rows[~took]] = True
     return Veto(pixels[touched], vetoed[touched], count)
+
+
+def solved(status):
+    """Whether pixels with these status codes (n,) have a normal."""
+    return ~np.isin(status, NO_NORMAL)
 
 
 def refine_run(solver, gather, kept, shape, options, context, *, chunk_size, workers=None):
@@ -217,11 +231,11 @@ def refine_run(solver, gather, kept, shape, options, context, *, chunk_size, wor
         again = run_chunks(solver, vetoed_gatherer(gather, veto), veto.pixels, shape, options,
                            chunk_size=chunk_size, workers=workers, context=context, keep=new,
                            pieces=chunk_pieces(kept.pixels, chunk_size, veto.pixels))
-        if maps:
-            merge_maps(maps, again.maps, veto.pixels)
-        else:
-            maps.update(again.maps)
-        return new.bits
+        took = solved(again.maps["status"].reshape(-1)[veto.pixels])
+        if not maps:
+            maps.update(allocate_maps(shape, again.maps["params"].shape[-1]))
+        merge_maps(maps, again.maps, veto.pixels[took])
+        return new.bits, took
 
     veto = vote_rounds(kept.bits, kept.pixels, shape, kept.count, refit)
     return veto, maps or None

@@ -38,8 +38,8 @@ from ..core.jit import single_threaded
 from ..core.paths import LIGHTS, TILES_SCRATCH
 from ..core.session import Session
 from .anchor import first_verdict
-from .consensus import (CONSENSUS_RADIUS, CONSENSUS_ROUNDS, Veto, consensus_record, halo_pixels, vetoed_gatherer,
-                        vote_rounds)
+from .consensus import (CONSENSUS_RADIUS, CONSENSUS_ROUNDS, Veto, consensus_record, halo_pixels, solved,
+                        vetoed_gatherer, vote_rounds)
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)
 from .estimate import check_lights, check_plan_frames, plan_solve, result_from_maps
@@ -317,7 +317,7 @@ def _tile_consensus(plan, tile, local, bits, pieces, gather, phases):
 
     def refit(veto):
         vetoed = vetoed_gatherer(wide, veto)
-        out = np.empty_like(veto.bits)
+        out, took = np.empty_like(veto.bits), np.ones(len(veto.pixels), bool)
         at = serial_order[np.searchsorted(pixels, veto.pixels)]
         for group in np.split(np.arange(len(at)), np.flatnonzero(np.diff(at // chunk)) + 1):
             idx = veto.pixels[group]
@@ -327,10 +327,13 @@ def _tile_consensus(plan, tile, local, bits, pieces, gather, phases):
                 again = solve_chunk(phases, picked, plan.context, solve.options, False)
                 piece = pieces[(int(at[group[0]]) - p0) // chunk]
                 rows = at[group] - p0 - (int(at[group[0]]) - p0) // chunk * chunk
+                took[group] = solved(again["status"])
                 for key in CHUNK_KEYS:
                     if key in piece:
-                        piece[key][rows] = again[key]
-        return out
+                        piece[key][rows[took[group]]] = again[key][took[group]]
+            else:   # a halo chunk: only its decisions are needed, and whether the fit would take them
+                took[group] = solved(phases.fit(picked, context=plan.context, **solve.options)["status"])
+        return out, took
 
     veto = vote_rounds(decided, pixels, (b - a, width), k, refit)
     mine = (serial_order[np.searchsorted(pixels, veto.pixels)] >= p0) & \

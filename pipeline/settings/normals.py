@@ -38,10 +38,10 @@ CONSENSUS = 48
 #: the neighbour consensus (:mod:`pipeline.photometric.consensus`): an observation a pixel kept is
 #: vetoed when more than CONSENSUS_SHARE of its object neighbours in the (2 r + 1)-pixel square
 #: window (r = CONSENSUS_RADIUS) rejected it, and the pixel has at least CONSENSUS_MIN_NEIGHBOURS
-#: of them (a strict majority of 3 x 3: docs/photometric-stereo.md, "Neighbour consensus"); the
+#: of them (a strict majority of 5 x 5: docs/photometric-stereo.md, "Neighbour consensus"); the
 #: vote is taken CONSENSUS_ROUNDS times, each on the decisions the last one left
-CONSENSUS_RADIUS = 1
-CONSENSUS_ROUNDS = 2
+CONSENSUS_RADIUS = 2
+CONSENSUS_ROUNDS = 3
 CONSENSUS_SHARE = 0.5
 CONSENSUS_MIN_NEIGHBOURS = 3
 #: folds over the lights of the held-out-light check (each light is held back once;
