@@ -12,7 +12,7 @@ from pipeline.importers import import_images
 from pipeline.photometric import normals_session
 from pipeline.photometric import tiles
 from pipeline import runner
-from pipeline.photometric.consensus import box_sums, consensus_veto, halo_pixels
+from pipeline.photometric.consensus import box_sums, consensus_veto, halo_pixels, vote_rounds
 from tests.pipeline.tiny_session import sphere
 
 FILES = ("normals/normals.exr", "normals/albedo.exr", "normals/residual.exr", "normals/brdf.exr",
@@ -108,3 +108,23 @@ def test_tiles_that_cut_the_object_vote_as_the_serial_stage(tmp_path):
     off = normals_session(Session.open(reference), force=True, show_progress=False, neighbour_consensus=False)
     assert "neighbour_consensus" not in off["selection"]
     assert off["params"]["neighbour_consensus"] is False
+
+
+def test_rounds_vote_on_the_last_decisions_and_a_refit_without_a_normal_is_not_taken():
+    kept = np.ones((8, 5, 5), bool)
+    kept[3] = False
+    kept[3, 2, 2] = True                     # light 3: only the centre keeps it
+    bits, pixels = packed(kept)
+    calls = []
+
+    def refit(veto, take):
+        calls.append(veto.pixels.copy())
+        new = np.packbits(kept.reshape(8, -1).T[veto.pixels] & ~veto.get(veto.pixels), axis=1)
+        return new, np.full(len(veto.pixels), take)
+
+    taken = vote_rounds(bits, pixels, (5, 5), 8, lambda veto: refit(veto, True), rounds=3)
+    assert list(taken.pixels) == [12] and taken.get(taken.pixels)[0, 3] and taken.observations == 1
+    assert len(calls) == 1                   # the second round finds nothing left to veto
+    calls.clear()
+    refused = vote_rounds(bits, pixels, (5, 5), 8, lambda veto: refit(veto, False), rounds=3)
+    assert refused.pixels.size == 0 and len(calls) == 1   # not taken, and not tried again
