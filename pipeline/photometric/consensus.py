@@ -27,9 +27,9 @@ from typing import NamedTuple
 import numpy as np
 
 from ..settings.normals import CONSENSUS_MIN_NEIGHBOURS, CONSENSUS_RADIUS, CONSENSUS_ROUNDS, CONSENSUS_SHARE
-from .engine import NO_NORMAL, KeptSelection, allocate_maps, run_chunks
+from .engine import NO_NORMAL, KeptSelection, run_chunks
 
-__all__ = ["Veto", "box_sums", "consensus_veto", "halo_pixels", "vetoed_gatherer", "refine_run", "merge_maps",
+__all__ = ["Veto", "box_sums", "consensus_veto", "halo_pixels", "vetoed_gatherer", "refine_run",
            "consensus_record", "chunk_pieces", "vote_rounds", "solved", "CONSENSUS_ROUNDS", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS"]
 
 
@@ -152,14 +152,6 @@ def vetoed_gatherer(gather, veto):
     return vetoed
 
 
-def merge_maps(maps, refit, pixels):
-    """Copy the maps of ``refit`` (:func:`pipeline.photometric.engine.allocate_maps`' maps) at flat
-    ``pixels`` into ``maps``, in place."""
-    for key, values in maps.items():
-        flat = values.reshape((-1,) + values.shape[2:])
-        flat[pixels] = refit[key].reshape(flat.shape)[pixels]
-
-
 def chunk_pieces(pixels, chunk, subset):
     """``subset`` (ascending, among ``pixels``) cut where ``pixels`` is cut into chunks of
     ``chunk``: the pixels of each first-pass chunk that are solved again, as one chunk. So a pixel
@@ -219,26 +211,30 @@ def solved(status):
     return ~np.isin(status, NO_NORMAL)
 
 
-def refine_run(solver, gather, kept, shape, options, context, *, chunk_size, workers=None):
+def refine_run(solver, gather, kept, maps, options, context, *, chunk_size, workers=None):
     """The consensus rounds of a serial run (:func:`vote_rounds`) over ``kept`` (a complete
-    :class:`pipeline.photometric.engine.KeptSelection`): the vetoed pixels are selected and fitted
-    again with the run's ``context``, each first-pass chunk's vetoed pixels as one chunk
-    (:func:`chunk_pieces`). Returns (:class:`Veto`, the refitted pixels' maps or None when none)."""
-    maps = {}
+    :class:`pipeline.photometric.engine.KeptSelection` of the run's pixels): the vetoed pixels are
+    selected and fitted again with the run's ``context``, each first-pass chunk's vetoed pixels as
+    one chunk (:func:`chunk_pieces`), and the refits taken are written into the run's ``maps``
+    (:func:`pipeline.photometric.engine.allocate_maps`' maps, (H, W, ...)) in place. The refits
+    are solved in maps of their own pixels only (a (1, A) image), not of the whole image.
+    Returns the :class:`Veto` of the pixels refitted."""
+    shape = maps["status"].shape
 
     def refit(veto):
-        new = KeptSelection(veto.pixels, veto.count)
-        again = run_chunks(solver, vetoed_gatherer(gather, veto), veto.pixels, shape, options,
-                           chunk_size=chunk_size, workers=workers, context=context, keep=new,
-                           pieces=chunk_pieces(kept.pixels, chunk_size, veto.pixels))
-        took = solved(again.maps["status"].reshape(-1)[veto.pixels])
-        if not maps:
-            maps.update(allocate_maps(shape, again.maps["params"].shape[-1]))
-        merge_maps(maps, again.maps, veto.pixels[took])
+        place = np.arange(len(veto.pixels))
+        new = KeptSelection(place, veto.count)
+        vetoed = vetoed_gatherer(gather, veto)
+        pieces = [np.searchsorted(veto.pixels, part) for part in chunk_pieces(kept.pixels, chunk_size, veto.pixels)]
+        again = run_chunks(solver, lambda idx: vetoed(veto.pixels[idx]), place, (1, len(place)), options,
+                           chunk_size=chunk_size, workers=workers, context=context, keep=new, pieces=pieces)
+        took = solved(again.maps["status"][0])
+        for key, values in maps.items():
+            flat = values.reshape((-1,) + values.shape[2:])
+            flat[veto.pixels[took]] = again.maps[key][0][took]
         return new.bits, took
 
-    veto = vote_rounds(kept.bits, kept.pixels, shape, kept.count, refit)
-    return veto, maps or None
+    return vote_rounds(kept.bits, kept.pixels, shape, kept.count, refit)
 
 
 def consensus_record(observations, refitted, pixels):

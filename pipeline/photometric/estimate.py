@@ -20,7 +20,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..core.jit import single_threaded
 from .anchor import anchor_scale, anchor_wanted, first_verdict
-from .consensus import consensus_record, merge_maps, refine_run
+from .consensus import consensus_record, refine_run
 from .engine import CHUNK_SIZE, KeptSelection, gatherer, prepare_context, run_chunks
 from .frame_gains import FrameCheck, check_frames
 from .methods import STATUS, check_method_options, get_method, method_traits
@@ -342,10 +342,8 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
                           progress=progress if on is pixels and not runs else None, keep=keep, reuse=reuse)
         if vote and keep.complete():
             # the anchor's mismatches stay the first pass's (as a tile's: the vote refines normals only)
-            veto, maps = refine_run(plan.solver, gather, keep, mask.shape, plan.options, done.context,
-                                    chunk_size=chunk_size, workers=workers)
-            if maps is not None:
-                merge_maps(done.maps, maps, veto.pixels)
+            veto = refine_run(plan.solver, gather, keep, done.maps, plan.options, done.context,
+                              chunk_size=chunk_size, workers=workers)
             votes.append(consensus_record(veto.observations, veto.pixels.size, len(pixels)))
         return done
 
