@@ -19,7 +19,7 @@ The vote reads each pixel's own decisions and its neighbours', and nothing else:
 stage votes over the whole image (:func:`refine_run`), a tile over its pixels and a halo of
 neighbours around them (:func:`halo_pixels`, rounds x radius wide), and both refit the same
 pixels with the same veto, so their normals are identical. Everything is vectorised: box sums
-over the (8, H, W) decisions of eight lights at a time (one byte of the packed decisions).
+over the (H, W) decisions of one light at a time.
 """
 
 from typing import NamedTuple
@@ -61,16 +61,23 @@ class Veto(NamedTuple):
 
 
 def box_sums(stack, radius):
-    """Sums over every (2 r + 1) x (2 r + 1) window, zero outside: (L, H, W) int32 of (L, H, W).
+    """Sums over every (2 r + 1) x (2 r + 1) window, zero outside: (L, H, W) of 0/1 (L, H, W).
 
-    Integer cumulative sums, so the counts are exact (a float filter's rounding could tip a vote).
+    Shifted adds, separable (rows, then columns), in the smallest unsigned integer that holds
+    (2 r + 1)^2: exact counts (a float filter's rounding could tip a vote), and a few bytes per
+    pixel of the image, whatever its size.
     """
     size = 2 * radius + 1
-    padded = np.zeros((stack.shape[0], stack.shape[1] + size, stack.shape[2] + size), np.int32)
-    padded[:, radius + 1:radius + 1 + stack.shape[1], radius + 1:radius + 1 + stack.shape[2]] = stack
-    np.cumsum(padded, axis=1, out=padded)
-    np.cumsum(padded, axis=2, out=padded)
-    return padded[:, size:, size:] - padded[:, :-size, size:] - padded[:, size:, :-size] + padded[:, :-size, :-size]
+    kind = np.uint8 if size * size <= 255 else np.uint16
+    stack = np.asarray(stack, kind)
+    rows = np.zeros(stack.shape, kind)
+    width, height = stack.shape[2], stack.shape[1]
+    for d in range(-radius, radius + 1):
+        rows[:, :, max(0, -d):width - max(0, d)] += stack[:, :, max(0, d):width - max(0, -d)]
+    out = np.zeros(stack.shape, kind)
+    for d in range(-radius, radius + 1):
+        out[:, max(0, -d):height - max(0, d)] += rows[:, max(0, d):height - max(0, -d)]
+    return out
 
 
 def consensus_veto(bits, pixels, shape, count, radius=CONSENSUS_RADIUS, share=CONSENSUS_SHARE,
@@ -102,18 +109,20 @@ def consensus_veto(bits, pixels, shape, count, radius=CONSENSUS_RADIUS, share=CO
     top, left = rows.min(), cols.min()
     rows, cols = rows - top, cols - left
     frame = (int(rows.max()) + 1, int(cols.max()) + 1)
-    obj = np.zeros((1,) + frame, np.uint8)
-    obj[0, rows, cols] = 1
-    neighbours = box_sums(obj, radius)[0, rows, cols] - 1
+    plane = np.zeros((1,) + frame, np.uint8)
+    plane[0, rows, cols] = 1
+    neighbours = box_sums(plane, radius)[0, rows, cols].astype(np.int64) - 1
     voting = neighbours >= min_neighbours
     limit = share * neighbours
     out = np.zeros_like(bits)
+    # one light at a time: a few bytes per pixel of the image, whatever the number of lights
     for byte in range(bits.shape[1]):
         kept = np.unpackbits(bits[:, byte:byte + 1], axis=1)                       # (P, 8)
-        stack = np.zeros((8,) + frame, np.uint8)
-        stack[:, rows, cols] = kept.T
-        keepers = box_sums(stack, radius)[:, rows, cols].T - kept                   # (P, 8), p excluded
-        veto = (kept > 0) & voting[:, None] & ((neighbours[:, None] - keepers) > limit[:, None])
+        veto = np.zeros(kept.shape, bool)
+        for j in range(min(8, count - 8 * byte)):
+            plane[0, rows, cols] = kept[:, j]
+            keepers = box_sums(plane, radius)[0, rows, cols].astype(np.int64) - kept[:, j]   # p excluded
+            veto[:, j] = (kept[:, j] > 0) & voting & (neighbours - keepers > limit)
         out[:, byte] = np.packbits(veto, axis=1)[:, 0]
     hit = out.any(axis=1)
     return Veto(pixels[hit], out[hit], count)
