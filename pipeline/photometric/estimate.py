@@ -108,7 +108,7 @@ class SolvePlan:
         How the frames' brightness is checked (:mod:`pipeline.photometric.frame_gains`);
         ``gains`` (K,) the frames' gains the solve divides by (None: as given) and
         ``gain_check`` the check's record, both set by :func:`check_plan_frames`.
-    consensus : bool
+    neighbour_consensus : bool
         Whether the method's option ``neighbour_consensus`` asks for the neighbours' vote on the
         selection (:mod:`pipeline.photometric.consensus`); it runs under the robust selection only
         (:attr:`votes`).
@@ -127,12 +127,12 @@ class SolvePlan:
     specular_anchor: object = "auto"
     gains: np.ndarray = None
     gain_check: dict = None
-    consensus: bool = False
+    neighbour_consensus: bool = False
 
     @property
     def votes(self):
-        """Whether the run votes: ``consensus`` asked for, with the robust selection."""
-        return self.consensus and self.options.get("selection") == "robust"
+        """Whether the run votes: ``neighbour_consensus`` asked for, with the robust selection."""
+        return self.neighbour_consensus and self.options.get("selection") == "robust"
 
     @property
     def solver_lights(self):
@@ -222,7 +222,7 @@ def plan_solve(method, lights, options):
         consensus = method_traits(solver).options.defaults().get("neighbour_consensus", False)
     anchor = anchor_wanted(method_traits(solver).wants_anchor, specular_anchor, options, directions, near)
     return SolvePlan(method, solver, directions, near, options, anchor, specular_anchor is True, frame_gains,
-                     uncertain_deg, given, specular_anchor, consensus=bool(consensus))
+                     uncertain_deg, given, specular_anchor, neighbour_consensus=bool(consensus))
 
 
 def check_plan_selection(plan, gather, pixels):
