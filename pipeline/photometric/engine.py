@@ -224,7 +224,7 @@ def scatter_chunk(maps, idx, chunk):
 
 
 def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_size=CHUNK_SIZE, workers=None,
-               progress=None, context=None, keep=None, reuse=None):
+               progress=None, context=None, keep=None, reuse=None, pieces=None):
     """One estimation over every chunk of ``pixels``.
 
     Parameters
@@ -247,6 +247,9 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
     keep, reuse : KeptSelection, optional
         Where to keep each chunk's selected observations; a complete one whose selection the
         chunks (and the context's preparation) take instead of selecting again.
+    pieces : list of ndarray (n,) int, optional
+        The chunks themselves (their union ``pixels``), instead of ``pixels`` cut every
+        ``chunk_size``.
 
     Returns
     -------
@@ -255,7 +258,8 @@ def run_chunks(solver, gather, pixels, shape, options, *, anchor=False, chunk_si
     out = {}
     mismatch, peaks = [], []
     lock = threading.Lock()
-    pieces = [pixels[i:i + chunk_size] for i in range(0, len(pixels), chunk_size)]
+    if pieces is None:
+        pieces = [pixels[i:i + chunk_size] for i in range(0, len(pixels), chunk_size)]
     chunks = iter(pieces)
     phases = phases_of(solver)
     chosen = (lambda idx: {"chosen": reuse.get(idx)}) if reuse is not None else (lambda idx: {})

@@ -20,6 +20,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..core.jit import single_threaded
 from .anchor import anchor_scale, anchor_wanted, first_verdict
+from .consensus import consensus_record, refine_run
 from .engine import CHUNK_SIZE, KeptSelection, gatherer, prepare_context, run_chunks
 from .frame_gains import FrameCheck, check_frames
 from .methods import STATUS, check_method_options, get_method, method_traits
@@ -107,6 +108,10 @@ class SolvePlan:
         How the frames' brightness is checked (:mod:`pipeline.photometric.frame_gains`);
         ``gains`` (K,) the frames' gains the solve divides by (None: as given) and
         ``gain_check`` the check's record, both set by :func:`check_plan_frames`.
+    neighbour_consensus : bool
+        Whether the method's option ``neighbour_consensus`` asks for the neighbours' vote on the
+        selection (:mod:`pipeline.photometric.consensus`); it runs under the robust selection only
+        (:attr:`votes`).
     """
 
     method: str
@@ -122,6 +127,12 @@ class SolvePlan:
     specular_anchor: object = "auto"
     gains: np.ndarray = None
     gain_check: dict = None
+    neighbour_consensus: bool = False
+
+    @property
+    def votes(self):
+        """Whether the run votes: ``neighbour_consensus`` asked for, with the robust selection."""
+        return self.neighbour_consensus and self.options.get("selection") == "robust"
 
     @property
     def solver_lights(self):
@@ -206,9 +217,12 @@ def plan_solve(method, lights, options):
     # checked with the method's options (its declaration: above 0) before any plan is made
     uncertain_deg = options.pop("uncertain_deg", None)
     uncertain_deg = UNCERTAIN_DEG if uncertain_deg is None else float(uncertain_deg)
+    consensus = options.pop("neighbour_consensus", None)
+    if consensus is None:   # the method's declared default (False for a method without the option)
+        consensus = method_traits(solver).options.defaults().get("neighbour_consensus", False)
     anchor = anchor_wanted(method_traits(solver).wants_anchor, specular_anchor, options, directions, near)
     return SolvePlan(method, solver, directions, near, options, anchor, specular_anchor is True, frame_gains,
-                     uncertain_deg, given, specular_anchor)
+                     uncertain_deg, given, specular_anchor, neighbour_consensus=bool(consensus))
 
 
 def check_plan_selection(plan, gather, pixels):
@@ -238,7 +252,7 @@ def check_plan_selection(plan, gather, pixels):
         return replace(plan, options=dict(plan.options, selection_check=check))
     check["verdict"] = "robust: the darkest observations do not determine the normals"
     options = resolve_selection(plan.lights, dict(plan.given, selection="robust"))
-    for key in ("specular_anchor", "frame_gains", "uncertain_deg"):   # the plan's own, not the method's
+    for key in ("specular_anchor", "frame_gains", "uncertain_deg", "neighbour_consensus"):   # the plan's own
         options.pop(key, None)
     anchor = anchor_wanted(method_traits(plan.solver).wants_anchor, plan.specular_anchor, options, plan.lights,
                            plan.near)
@@ -312,17 +326,26 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     flat_images, flat_valid = images.reshape(k, -1), None if valid is None else valid.reshape(k, -1)
     pixels = np.flatnonzero(mask)
     plan = check_plan_frames(plan, gatherer(flat_images, flat_valid, plan.solver_lights), pixels)
-    runs, probes = [], []
-    # the anchor's corrected run keeps the first run's selection (reuse_selection)
-    kept = KeptSelection(pixels, k) if plan.anchor else None
+    runs, probes, votes = [], [], []
+    # the anchor's corrected run keeps the first run's selection (reuse_selection); the
+    # neighbours' vote reads the selection of the run it refines
+    kept = KeptSelection(pixels, k) if plan.anchor or plan.votes else None
 
     def run(run_lights, on=pixels, context=None, reuse=None):
         gather = gatherer(flat_images, flat_valid, plan.near if plan.near is not None else run_lights,
                           gains=plan.gains)
-        return run_chunks(plan.solver, gather, on, mask.shape, plan.options, anchor=plan.anchor,
+        # a probe (some pixels only) measures the anchor's slope on the first pass: it does not vote
+        vote = plan.votes and on is pixels
+        keep = kept if not runs else KeptSelection(pixels, k) if vote else None
+        done = run_chunks(plan.solver, gather, on, mask.shape, plan.options, anchor=plan.anchor,
                           chunk_size=chunk_size, workers=workers, context=context,
-                          progress=progress if on is pixels and not runs else None,
-                          keep=kept if not runs else None, reuse=reuse)
+                          progress=progress if on is pixels and not runs else None, keep=keep, reuse=reuse)
+        if vote and keep.complete():
+            # the anchor's mismatches stay the first pass's (as a tile's: the vote refines normals only)
+            veto = refine_run(plan.solver, gather, keep, done.maps, plan.options, done.context,
+                              chunk_size=chunk_size, workers=workers)
+            votes.append(consensus_record(veto.observations, veto.pixels.size, len(pixels)))
+        return done
 
     def later_context(run_lights, reuse=None):
         # The anchor's runs after the first (other lights) prepare before their chunks, on every
@@ -365,6 +388,8 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
         options.update(info)
     else:
         out, shared = solve(plan.lights)[0]
+    if votes:   # the vote of the run whose maps are returned (the last)
+        options["neighbour_consensus"] = votes[-1]
     return result_from_maps(out, mask, method, options, shared, seconds=time.perf_counter() - start, lights=k,
                             uncertain_deg=plan.uncertain_deg)
 

@@ -121,7 +121,7 @@ def held_out_prediction(images, valid, lights, mask, *, options=None, folds=FOLD
     mask : ndarray (H, W) bool
         Object pixels.
     options : dict, optional
-        The stage's solver options (the biquadratic refits take them, the anchor off).
+        The stage's solver options (the biquadratic refits take them, the anchor and the neighbours' vote off).
     folds : int
         Folds over the lights (at most one light per fold below ``folds`` lights).
     sample_pixels : int
@@ -167,7 +167,9 @@ def held_out_prediction(images, valid, lights, mask, *, options=None, folds=FOLD
     seen = usable[:, inside]
     predicted = {name: np.full(captured.shape, np.nan) for name in ("biquadratic", "lambert")}
     options = dict(options or {})
-    biquadratic_options = dict(options, specular_anchor=False)
+    # the refits are the model's check on a sample grid: without the anchor, and without the
+    # neighbours' vote (pipeline.photometric.consensus), whose neighbours the grid's stride spaces out
+    biquadratic_options = dict(options, specular_anchor=False, neighbour_consensus=False)
     lambert_options = {k: options[k] for k in _SELECTION_OPTIONS if options.get(k) is not None}
     try:
         for f in range(folds):

@@ -632,7 +632,7 @@ def record_normals(session, run, result, channels, near_depth=None, registration
 PREDICTION_CHANNELS = ("captured", "biquadratic", "lambert")
 #: the solver's options the stage record keeps (after the policy filled them in)
 SELECTION_KEYS = ("selection", "t_low", "t_shadow", "reject_k", "consensus", "scale_floor", "shape_prior",
-                  "shared_shape", "selection_check")
+                  "shared_shape", "selection_check", "neighbour_consensus")
 def frame_gains_record(check, frames):
     """The stage record's ``frame_gains`` entry ({} without a check): the check's verdict and
     largest deviation (:mod:`pipeline.photometric.frame_gains`), the rescaled frames by id."""

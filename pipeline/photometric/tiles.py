@@ -41,6 +41,8 @@ from ..core.mapped import MappedNpy, create_npy
 from ..core.paths import LIGHTS, TILES_SCRATCH
 from ..core.session import Session
 from .anchor import first_verdict
+from .consensus import (CONSENSUS_RADIUS, CONSENSUS_ROUNDS, Veto, consensus_record, halo_pixels, solved,
+                        vetoed_gatherer, vote_rounds)
 from .engine import (CHUNK_KEYS, CHUNK_SIZE, SHARED_KEYS, allocate_maps, gatherer, phases_of, prepare_context,
                      scatter_chunk, solve_chunk)
 from .estimate import check_lights, check_plan_frames, plan_solve, result_from_maps
@@ -265,20 +267,102 @@ def run_tile(plan, tile, hook=None):
     local = np.flatnonzero(mask[r0:r1])[skip:skip + count]
     solve = plan.solve
     phases = phases_of(solve.solver)
-    pieces = []
+    pieces, kept = [], []
+    votes = {}
     # one BLAS thread: a Dask worker is one core's worth of work
     with single_threaded():
         for start in range(0, len(local), plan.chunk):
             idx = local[start:start + plan.chunk]
             picked = phases.select(*_finite(gather(idx), plan, r0, r1), context=plan.context, **solve.options)
             pieces.append(solve_chunk(phases, picked, plan.context, solve.options, solve.anchor))
+            if solve.votes and "weights" in picked:
+                kept.append(np.packbits(picked["weights"] > 0, axis=1))
+        if solve.votes and pieces and len(kept) == len(pieces):
+            votes = _tile_consensus(plan, tile, local, np.concatenate(kept), pieces, gather, phases)
     if hook is not None:
         hook(plan, tile)
     keys = tuple(key for key in CHUNK_KEYS if pieces and key in pieces[0]) + (("mismatch",) if solve.anchor else ())
     arrays = {key: np.concatenate([p[key] for p in pieces]) for key in keys} if pieces else {}
     with atomic_path(target) as tmp:
-        np.savez(tmp, idx=local + r0 * width, **arrays)
+        np.savez(tmp, idx=local + r0 * width, **arrays, **votes)
     return str(target)
+
+
+def _tile_consensus(plan, tile, local, bits, pieces, gather, phases):
+    """The neighbour consensus of one tile (:mod:`pipeline.photometric.consensus`), in place on its
+    solved ``pieces`` (one per chunk); returns the counts the tile file keeps.
+
+    Each round's vote at a pixel reads its neighbours' decisions of the round before, so after
+    R rounds of radius r the tile's pixels depend on the first-pass decisions within R r of them:
+    that halo, with the tile, is voted on here, every round, as the serial stage votes on the
+    whole image. Its pixels lie in the chunks before and after the tile, which are selected as
+    whole chunks (the serial stage's); in each round the vetoed pixels of each chunk are selected
+    (and, the tile's own, fitted) again as one chunk, as the serial stage does
+    (:func:`pipeline.photometric.consensus.chunk_pieces`). The halo's outer pixels miss
+    neighbours, and their votes may differ from the serial stage's, but the rounds carry a
+    difference inward by r a round at most: never into the tile. The specular-peak mismatches
+    stay the first pass's.
+    """
+    p0, r0, r1, skip, count = tile
+    solve, chunk = plan.solve, plan.chunk
+    reach = CONSENSUS_RADIUS * CONSENSUS_ROUNDS
+    stack = np.load(plan.scratch("stack.npy"), mmap_mode="r")
+    valid = np.load(plan.scratch("valid.npy"), mmap_mode="r")
+    mask = np.load(plan.scratch("mask.npy"), mmap_mode="r")
+    k, height, width = stack.shape
+    before = np.concatenate([[0], np.cumsum(np.count_nonzero(mask, axis=1))])   # object pixels before each row
+    total = int(before[-1])
+    h0, h1 = max(r0 - reach, 0), min(r1 + reach, height)
+    near = halo_pixels(np.asarray(mask[h0:h1]), local + (r0 - h0) * width, reach)
+    order = before[h0] + np.searchsorted(np.flatnonzero(mask[h0:h1]), near)    # the halo's places in the serial order
+    chunks = np.unique(order // chunk)
+    # the rows of the tile and of the halo's whole chunks: one gatherer over them
+    a = min(r0, int(np.searchsorted(before, chunks.min() * chunk, side="right")) - 1) if chunks.size else r0
+    b = max(r1, int(np.searchsorted(before, min((chunks.max() + 1) * chunk, total) - 1, side="right"))) \
+        if chunks.size else r1
+    in_rows = np.flatnonzero(mask[a:b])                  # object pixels of rows [a, b), in the serial order
+    start = int(before[a])
+    wide = gatherer(stack[:, a:b].reshape(k, -1), valid[:, a:b].reshape(k, -1), solve.solver_lights,
+                    offset=a * width, gains=solve.gains)
+    own = local + (r0 - a) * width
+    halo_bits = []
+    halo = []
+    for c in chunks:
+        first, last = c * chunk, min((c + 1) * chunk, total)
+        idx = in_rows[first - start:last - start]
+        picked = phases.select(*_finite(wide(idx), plan, a, b), context=plan.context, **solve.options)
+        halo.append(idx)
+        halo_bits.append(np.packbits(picked["weights"] > 0, axis=1))
+    pixels = np.concatenate([own] + halo)
+    sort = np.argsort(pixels)
+    pixels, decided = pixels[sort], np.concatenate([bits] + halo_bits)[sort]
+    serial_order = start + np.searchsorted(in_rows, pixels)
+
+    def refit(veto):
+        vetoed = vetoed_gatherer(wide, veto)
+        out, took = np.empty_like(veto.bits), np.ones(len(veto.pixels), bool)
+        at = serial_order[np.searchsorted(pixels, veto.pixels)]
+        for group in np.split(np.arange(len(at)), np.flatnonzero(np.diff(at // chunk)) + 1):
+            idx = veto.pixels[group]
+            picked = phases.select(*_finite(vetoed(idx), plan, a, b), context=plan.context, **solve.options)
+            out[group] = np.packbits(picked["weights"] > 0, axis=1)
+            if p0 <= at[group[0]] < p0 + count:          # the tile's own chunk: fitted again
+                again = solve_chunk(phases, picked, plan.context, solve.options, False)
+                piece = pieces[(int(at[group[0]]) - p0) // chunk]
+                rows = at[group] - p0 - (int(at[group[0]]) - p0) // chunk * chunk
+                took[group] = solved(again["status"])
+                for key in CHUNK_KEYS:
+                    if key in piece:
+                        piece[key][rows[took[group]]] = again[key][took[group]]
+            else:   # a halo chunk: only its decisions are needed, and whether the fit would take them
+                took[group] = solved(phases.fit(picked, context=plan.context, **solve.options)["status"])
+        return out, took
+
+    veto = vote_rounds(decided, pixels, (b - a, width), k, refit)
+    mine = (serial_order[np.searchsorted(pixels, veto.pixels)] >= p0) & \
+        (serial_order[np.searchsorted(pixels, veto.pixels)] < p0 + count)
+    return {"vetoed": np.int64(Veto(veto.pixels[mine], veto.bits[mine], k).observations),
+            "refitted": np.int64(mine.sum())}
 
 
 def _finite(gathered, plan, r0, r1):
@@ -308,6 +392,7 @@ def assemble_normals(plan, tile_paths=None, **record):
         return WHOLE_IMAGE
     mask = np.load(plan.scratch("mask.npy"))
     out, mismatch = None, []
+    vetoed = refitted = 0
     for tile in plan.tiles:
         path = plan.scratch(f"tile-{tile[0]:010d}.npz")
         if not path.is_file():
@@ -316,12 +401,16 @@ def assemble_normals(plan, tile_paths=None, **record):
             if tile["idx"].size == 0:
                 continue
             chunk = {key: tile[key] for key in CHUNK_KEYS if key in tile}
+            if "vetoed" in tile:
+                vetoed, refitted = vetoed + int(tile["vetoed"]), refitted + int(tile["refitted"])
             if out is None:
                 out = allocate_maps(mask.shape, chunk["params"].shape[1])
             scatter_chunk(out, tile["idx"], chunk)
             if plan.anchor:
                 mismatch.append(tile["mismatch"])
     options = dict(plan.solve.options, frame_check=plan.solve.gain_check)
+    if plan.solve.votes:
+        options["neighbour_consensus"] = consensus_record(vetoed, refitted, int(mask.sum()))
     if plan.anchor:
         verdict = first_verdict(np.concatenate(mismatch) if mismatch else np.zeros(0))
         if verdict["anchor"] == "to correct":

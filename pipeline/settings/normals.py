@@ -15,7 +15,7 @@ from ..core.options import Options, option
 
 __all__ = ["SelectionOptions", "EstimateOptions", "BiquadraticOptions", "AlternationOptions", "NormalsOptions",
            "T_SHADOW", "WIDE_T_SHADOW", "WIDE_T_LOW", "WIDE_SPREAD_DEG", "REJECT_K", "SHAPE_PRIOR", "MAX_ITER", "TOL_DEG", "CONSENSUS", "UNCERTAIN_DEG", "FOLDS",
-           "SCALE_FLOOR",
+           "SCALE_FLOOR", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS", "CONSENSUS_ROUNDS",
            "parse_fraction"]
 
 #: observations below this fraction of the pixel's 90th-percentile intensity are shadows
@@ -35,6 +35,15 @@ REJECT_K = 2.5
 SCALE_FLOOR = 0.01
 #: triplets of lights the high-breakdown start of :func:`pipeline.photometric.selection.select_robust` tries per pixel
 CONSENSUS = 48
+#: the neighbour consensus (:mod:`pipeline.photometric.consensus`): an observation a pixel kept is
+#: vetoed when more than CONSENSUS_SHARE of its object neighbours in the (2 r + 1)-pixel square
+#: window (r = CONSENSUS_RADIUS) rejected it, and the pixel has at least CONSENSUS_MIN_NEIGHBOURS
+#: of them (a strict majority of 5 x 5: docs/photometric-stereo.md, "Neighbour consensus"); the
+#: vote is taken CONSENSUS_ROUNDS times, each on the decisions the last one left
+CONSENSUS_RADIUS = 2
+CONSENSUS_ROUNDS = 3
+CONSENSUS_SHARE = 0.5
+CONSENSUS_MIN_NEIGHBOURS = 3
 #: folds over the lights of the held-out-light check (each light is held back once;
 #: :mod:`pipeline.photometric.prediction`)
 FOLDS = 5
@@ -116,6 +125,9 @@ class BiquadraticOptions(SelectionOptions):
     shape_check: bool = option(None, "False: keep the shared shape even when the object fails the "
                                      "single-material check", kind=bool, flag="", default_text="checked")
     max_iter: int = option(MAX_ITER, "Levenberg-Marquardt steps per pixel at most", kind=int, low=1, flag="")
+    neighbour_consensus: bool = option(True, "after the selection, veto each observation a pixel kept that most of "
+                                             "its object neighbours rejected, and select and fit those pixels again "
+                                             "(robust selection only)", cli=ON_OFF)
     tol_deg: float = option(TOL_DEG, "a pixel stops when its step turns the normal by less than this (degrees)",
                             kind=float, above=0.0, flag="")
 

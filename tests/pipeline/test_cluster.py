@@ -326,17 +326,23 @@ def test_plain_run_needs_no_dask_and_scheduler_says_what_to_install(tmp_path, mo
 def test_non_finite_observation_in_a_tile_is_an_error_naming_image_and_rows(tmp_path):
     root = make_session(tmp_path, "s", 64)
     runner.run_session(root, stop="calibrate")
-    plan = cluster_tiles.plan_normals(Session.open(root), {}, tile_pixels=1)
-    p0, r0, r1, skip, count = plan.tiles[1]
-    stack = np.load(plan.scratch("stack.npy"), mmap_mode="r+")
-    row, col = divmod(int(np.flatnonzero(np.load(plan.scratch("mask.npy")))[p0 + 5]), stack.shape[2])
-    stack[3, row, col] = np.nan
-    stack.flush()
-    del stack
-    cluster_tiles.run_tile(plan, plan.tiles[0])
-    with pytest.raises(InputError, match=rf"image 3 .*rows {r0}-{r1 - 1}"):
-        cluster_tiles.run_tile(plan, plan.tiles[1])
-    assert not plan.scratch(f"tile-{p0:010d}.npz").exists()
+    for consensus in (False, True):
+        plan = cluster_tiles.plan_normals(Session.open(root), {"neighbour_consensus": consensus}, tile_pixels=1,
+                                          force=True)
+        p0, r0, r1, skip, count = plan.tiles[1]
+        stack = np.load(plan.scratch("stack.npy"), mmap_mode="r+")
+        row, col = divmod(int(np.flatnonzero(np.load(plan.scratch("mask.npy")))[p0 + 5]), stack.shape[2])
+        stack[3, row, col] = np.nan
+        stack.flush()
+        del stack
+        if consensus:   # the first tile's vote reads the second's first-pass decisions (its halo): refused too
+            with pytest.raises(InputError, match=r"image 3 .*rows \d+-\d+"):
+                cluster_tiles.run_tile(plan, plan.tiles[0])
+        else:
+            cluster_tiles.run_tile(plan, plan.tiles[0])
+        with pytest.raises(InputError, match=rf"image 3 .*rows {r0}-{r1 - 1}"):
+            cluster_tiles.run_tile(plan, plan.tiles[1])
+        assert not plan.scratch(f"tile-{p0:010d}.npz").exists()
 
 
 def make_miscalibrated_session(folder, name, size=80):
