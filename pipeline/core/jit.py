@@ -1,6 +1,6 @@
 """How psrig's numeric kernels run: compiled with numba on first use, or numpy; on one BLAS
-thread where the caller runs threads of its own; and within what memory (the budget, at the
-end). The one place that decides these.
+thread where the caller runs threads of its own. The one place that decides these (the memory
+a stage may use is :mod:`pipeline.core.memory`'s).
 
 Kernels in psrig are plain Python over scalars, compiled with numba the first time they are
 needed (or loaded from numba's on-disk cache). Nothing is compiled at import. A compilation
@@ -23,19 +23,6 @@ only when a module was imported since (an import may load another BLAS).
 
 >>> with single_threaded():          # every thread-pool library
 ...     run_chunks(...)
-
-The memory budget of the stages that hold a whole session in memory (normals, integrate):
-The memory budget of the stages that hold a whole session in memory (normals, integrate).
-
-A stage estimates its peak from the session's size before it starts (:func:`check_budget`):
-within the budget it runs as it is; over it, it runs another way when it has one (the normals
-stage solves tiles from a memory-mapped stack) or refuses with one line saying what it needs,
-what is available and which option helps, instead of being ended by the kernel's OOM killer
-halfway through.
-
-The budget is ``--memory`` (bytes, ``8G``, ``1500M`` or a share of the available memory such as
-``60%``), by default :data:`DEFAULT_SHARE` of the memory available when the stage starts
-(``MemAvailable``: free memory plus what the kernel can reclaim).
 """
 
 import contextlib

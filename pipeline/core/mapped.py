@@ -13,7 +13,7 @@ import mmap
 
 import numpy as np
 
-__all__ = ["MappedNpy", "create_npy"]
+__all__ = ["MappedNpy", "FrameByFrame", "create_npy"]
 
 
 def create_npy(path, shape, dtype):
@@ -60,3 +60,41 @@ class MappedNpy:
         except BufferError:   # a view of the array outlives the block: the map closes with it
             pass
         return False
+
+
+class FrameByFrame:
+    """A stack (K, ...) in a ``.npy`` file, read a frame at a time: ``stack[:, ...]`` (every
+    frame, any index of the rest) is gathered frame by frame, each frame's pages given back
+    after it. A sample spread over the image (a grid, a random set of pixels) touches most pages
+    of every frame, and the kernel maps the pages around each touched one too: read through one
+    plain mapping, it would show most of the stack as this process's memory at once.
+
+    ``flat`` views each frame as one row of pixels, (K, H x W), as pixel indices address it.
+    """
+
+    def __init__(self, path, flat=False):
+        self.path, self.flat = str(path), flat
+        with MappedNpy(path) as mapped:
+            self.dtype = mapped.array.dtype
+            shape = mapped.array.shape
+        self.shape = (shape[0], int(np.prod(shape[1:]))) if flat else tuple(shape)
+        self.ndim = len(self.shape)
+
+    def __len__(self):
+        return self.shape[0]
+
+    def __getitem__(self, key):
+        key = key if isinstance(key, tuple) else (key,)
+        if key[0] != slice(None):
+            raise IndexError("every frame is read here: the first index must be ':'")
+        rest = key[1:]
+        with MappedNpy(self.path) as mapped:
+            frames = mapped.array.reshape(self.shape)
+            first = np.asarray(frames[0][rest])
+            out = np.empty((self.shape[0],) + first.shape, self.dtype)
+            out[0] = first
+            mapped.release()
+            for k in range(1, self.shape[0]):
+                out[k] = frames[k][rest]
+                mapped.release()
+        return out

@@ -3,7 +3,12 @@ in one line before a stage that would not fit starts (rather than the kernel's O
 
 Stages estimate their peak from the session's size (:func:`pipeline.photometric.stage.normals_memory`,
 :func:`pipeline.integrate.stage.integrate_memory`) and compare it with :func:`budget_bytes`;
-docs/big-captures.md has the measurements behind the estimates.
+docs/big-captures.md has the measurements behind the estimates. Within the budget a stage runs
+as it is; over it, it runs another way when it has one (the normals stage solves tiles from a
+memory-mapped stack) or refuses. The budget is ``--memory``, by default a share of the memory
+available when the stage starts (``MemAvailable``: free memory plus what the kernel can
+reclaim): the stage's own (the normals stage's :data:`pipeline.settings.normals.MEMORY_SHARE`)
+or :data:`DEFAULT_SHARE`.
 """
 
 import os
@@ -48,14 +53,15 @@ def available_bytes():
     return found
 
 
-def budget_bytes(memory=None):
-    """The budget in bytes for ``memory``: None (:data:`DEFAULT_SHARE` of the available memory),
-    a number of bytes, or text: ``8G``, ``8GB``, ``1500M``, ``60%`` (of the available memory).
+def budget_bytes(memory=None, share=DEFAULT_SHARE):
+    """The budget in bytes for ``memory``: None (``share`` of the available memory: a stage's
+    default, :data:`DEFAULT_SHARE` unless it declares its own), a number of bytes, or text:
+    ``8G``, ``8GB``, ``1500M``, ``60%`` (of the available memory).
 
     Raises InputError for text it cannot read or a budget of nothing.
     """
     if memory is None:
-        return int(DEFAULT_SHARE * available_bytes())
+        return int(share * available_bytes())
     if isinstance(memory, (int, float)):
         value = float(memory)
     else:

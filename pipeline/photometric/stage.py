@@ -27,7 +27,7 @@ from ..core.memory import BASE_BYTES, budget_bytes, check_budget, format_gb
 from ..core.lightsio import read_exclude, read_lights_yaml
 from ..core.paths import EXCLUDE, LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, PREDICTION, PREDICTION_IMAGES, UNCERTAINTY
 from ..core.progress import progress as progress_bar
-from ..settings.normals import FOLDS, EstimateOptions, NormalsOptions
+from ..settings.normals import FOLDS, MEMORY_SHARE, EstimateOptions, NormalsOptions
 from ..core.stage import Stage
 from ..core.yamlio import dump_yaml, plain
 from .anchor import scale_cone
@@ -431,7 +431,7 @@ def normals_session(session, *, force=False, show_progress=True, tiled=None, **o
     if run is None:
         return None
     method, near_depth = run.method, run.near_depth
-    budget = budget_bytes(run.memory)
+    budget = budget_bytes(run.memory, MEMORY_SHARE)
     workers = read_workers()
     needs = normals_memory(stack_shape(session, run.frames), workers)
     where = f"{session.root}: normals"

@@ -37,7 +37,7 @@ from ..core.atomic import atomic_path
 from ..core.errors import InputError, StageError
 from ..core.imageio import read_workers
 from ..core.jit import single_threaded
-from ..core.mapped import MappedNpy, create_npy
+from ..core.mapped import FrameByFrame, MappedNpy, create_npy
 from ..core.paths import LIGHTS, TILES_SCRATCH
 from ..core.session import Session
 from .anchor import first_verdict
@@ -205,40 +205,16 @@ def tile_context(folder, mask, solve):
                            solve.options)
 
 
-class _FrameByFrame:
-    """The scratch file's stack as a (K, H x W) array for :func:`gatherer` whose pixel lists
-    (``[:, idx]``) are read a frame at a time, each frame's pages given back after it: a
-    sample spread over the object touches most pages of every frame, which one gather through
-    a plain mapping would leave in this process's memory together."""
-
-    def __init__(self, path):
-        self.path = path
-        with MappedNpy(path) as mapped:
-            self.dtype = mapped.array.dtype
-            self.shape = (mapped.array.shape[0], int(np.prod(mapped.array.shape[1:])))
-
-    def __getitem__(self, key):
-        frames, idx = key
-        if frames != slice(None):
-            raise IndexError("only every frame's pixels [:, idx] are read here")
-        out = np.empty((self.shape[0], len(idx)), self.dtype)
-        with MappedNpy(self.path) as mapped:
-            flat = mapped.array.reshape(self.shape)
-            for k in range(self.shape[0]):
-                out[k] = flat[k, idx]
-                mapped.release()
-        return out
-
-
 def _stack_gatherer(folder, solve, gains):
-    return gatherer(_FrameByFrame(Path(folder) / "stack.npy"), _FrameByFrame(Path(folder) / "valid.npy"),
-                    solve.solver_lights, gains=gains)
+    # a whole-object sample: read frame by frame, not through one mapping of the stack
+    return gatherer(FrameByFrame(Path(folder) / "stack.npy", flat=True),
+                    FrameByFrame(Path(folder) / "valid.npy", flat=True), solve.solver_lights, gains=gains)
 
 
 def _registration(plan, result):
     """The serial stage's registration check on the memory-mapped stack (:func:`registration_verdict`)."""
-    return registration_verdict(np.load(plan.scratch("stack.npy"), mmap_mode="r"),
-                                np.load(plan.scratch("valid.npy"), mmap_mode="r"), plan.solve.solver_lights, result,
+    return registration_verdict(FrameByFrame(plan.scratch("stack.npy")),
+                                FrameByFrame(plan.scratch("valid.npy")), plan.solve.solver_lights, result,
                                 plan.run.align)
 
 
@@ -426,8 +402,8 @@ def assemble_normals(plan, tile_paths=None, **record):
     if found.get("align"):   # frames to align and solve again: a whole-image solve, as the serial stage's
         shutil.rmtree(plan.scratch(), ignore_errors=True)
         return WHOLE_IMAGE
-    prediction = predict_held_out(plan.run, np.load(plan.scratch("stack.npy"), mmap_mode="r"),
-                                  np.load(plan.scratch("valid.npy"), mmap_mode="r"), plan.solve.solver_lights, result)
+    prediction = predict_held_out(plan.run, FrameByFrame(plan.scratch("stack.npy")),
+                                  FrameByFrame(plan.scratch("valid.npy")), plan.solve.solver_lights, result)
     record = record_normals(session, plan.run, result, channels, registration=found, prediction=prediction, **record)
     shutil.rmtree(plan.scratch(), ignore_errors=True)
     return record

@@ -16,6 +16,7 @@ from ..core.options import Options, option
 __all__ = ["SelectionOptions", "EstimateOptions", "BiquadraticOptions", "AlternationOptions", "NormalsOptions",
            "T_SHADOW", "WIDE_T_SHADOW", "WIDE_T_LOW", "WIDE_SPREAD_DEG", "REJECT_K", "SHAPE_PRIOR", "MAX_ITER", "TOL_DEG", "CONSENSUS", "UNCERTAIN_DEG", "FOLDS",
            "SCALE_FLOOR", "CONSENSUS_RADIUS", "CONSENSUS_SHARE", "CONSENSUS_MIN_NEIGHBOURS", "CONSENSUS_ROUNDS",
+           "MEMORY_SHARE",
            "parse_fraction"]
 
 #: observations below this fraction of the pixel's 90th-percentile intensity are shadows
@@ -47,6 +48,10 @@ CONSENSUS_MIN_NEIGHBOURS = 3
 #: folds over the lights of the held-out-light check (each light is held back once;
 #: :mod:`pipeline.photometric.prediction`)
 FOLDS = 5
+#: the normals stage's default memory budget, a share of the available memory: a stack over it
+#: is solved in tiles, which cost about what the whole-image solve costs (docs/big-captures.md),
+#: so the stage does not take most of a workstation's memory because it could
+MEMORY_SHARE = 0.5
 #: a pixel whose expected angular error (degrees) is over this is 'uncertain', not 'ok'
 #: (:mod:`pipeline.photometric.uncertainty`; docs/photometric-stereo.md, "Uncertainty")
 UNCERTAIN_DEG = 20.0
@@ -166,7 +171,7 @@ class NormalsOptions(BiquadraticOptions, EstimateOptions):
     memory: str = option(None, "memory budget: bytes, 8G, 1500M or a share of the available memory such as 60%; a "
                                "stack over it is solved in tiles from a memory-mapped file, a run that cannot fit "
                                "is refused before it starts", kind=str, metavar="SIZE", recorded=False,
-                         default_text="80% of the available memory")
+                         default_text=f"{MEMORY_SHARE:.0%} of the available memory")
 
     STAGE_FIELDS = ("method", "lights_model", "near_depth", "holdout_folds", "align", "memory")
 

@@ -41,3 +41,20 @@ def test_a_read_only_map_cannot_be_written(tmp_path):
         assert mapped.array.shape == (3, 4) and mapped.array.all()
         with pytest.raises(ValueError):
             mapped.array[0, 0] = False
+
+
+def test_frame_by_frame_reads_what_the_array_holds(tmp_path):
+    from pipeline.core.mapped import FrameByFrame
+
+    path = tmp_path / "stack.npy"
+    stack = np.random.default_rng(1).random((5, 12, 9)).astype(np.float32)
+    np.save(path, stack)
+    frames = FrameByFrame(path)
+    assert frames.shape == stack.shape and len(frames) == 5 and frames.dtype == np.float32
+    window = (slice(None), slice(2, 11, 3), slice(1, None, 2))
+    assert np.array_equal(frames[window], stack[window])
+    flat = FrameByFrame(path, flat=True)
+    idx = np.array([0, 7, 50, 107])
+    assert flat.shape == (5, 108) and np.array_equal(flat[:, idx], stack.reshape(5, -1)[:, idx])
+    with pytest.raises(IndexError):
+        frames[1:3]
