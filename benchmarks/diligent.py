@@ -10,6 +10,8 @@ solve ``pinv(L) @ I`` run in the same process; then each method's mean over the 
 """
 
 import argparse
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -33,6 +35,18 @@ def pinv_seconds(images, lights, mask, repeat=7):
         np.linalg.pinv(lights) @ observations
         best = min(best, time.perf_counter() - start)
     return best
+
+
+def git_archive(rev, folder, *paths, who="benchmark"):
+    """Unpack ``paths`` of git revision ``rev`` of this repository into ``folder`` (made if need
+    be); exits naming ``who`` when git cannot give them."""
+    root = Path(__file__).resolve().parents[1]
+    archive = subprocess.run(["git", "-C", str(root), "archive", rev, *paths], capture_output=True, check=False)
+    if archive.returncode:
+        sys.exit(f"{who}: git archive {rev}: {archive.stderr.decode().strip()}")
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive.stdout, check=True)
+    return Path(folder)
 
 
 def angular_error(est, gt, mask):

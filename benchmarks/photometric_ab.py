@@ -19,7 +19,6 @@ first run, untimed: the copy is new each time, so numba's on-disk cache never ha
 import argparse
 import importlib
 import re
-import subprocess
 import sys
 import tempfile
 import time
@@ -30,7 +29,7 @@ import numpy as np
 from pipeline.importers import read_diligent
 from pipeline.photometric import estimate_normals
 
-from diligent import pinv_seconds  # the one baseline, beside this script
+from diligent import git_archive, pinv_seconds  # the one baseline, beside this script
 
 ROOT = Path(__file__).resolve().parents[1]
 NAME = "pipeline_rev"
@@ -38,10 +37,7 @@ NAME = "pipeline_rev"
 
 def load_revision(rev, folder):
     """``estimate_normals`` of revision ``rev``'s pipeline, unpacked into ``folder``."""
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "pipeline"], capture_output=True, check=False)
-    if archive.returncode:
-        sys.exit(f"photometric_ab: git archive {rev}: {archive.stderr.decode().strip()}")
-    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive.stdout, check=True)
+    git_archive(rev, folder, "pipeline", who="photometric_ab")
     package = Path(folder) / NAME
     (Path(folder) / "pipeline").rename(package)
     absolute = re.compile(r"^\s*(from|import)\s+pipeline\b", re.MULTILINE)

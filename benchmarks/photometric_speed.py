@@ -39,7 +39,7 @@ from pipeline.experiments.synthetic import cook_torrance_images, hemisphere_ligh
 from pipeline.importers import read_diligent
 from pipeline.photometric import estimate_normals, kernels
 
-from diligent import pinv_seconds  # the one baseline, beside this script
+from diligent import git_archive, pinv_seconds  # the one baseline, beside this script
 
 TARGET_RATIO = 100
 
@@ -84,13 +84,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def checkout(rev, folder):
     """The code of revision ``rev`` (its pipeline, rig and calibration packages) under ``folder``."""
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "pipeline", "rig", "calibration"],
-                             capture_output=True, check=False)
-    if archive.returncode:
-        sys.exit(f"photometric_speed: git archive {rev}: {archive.stderr.decode().strip()}")
-    Path(folder).mkdir(parents=True, exist_ok=True)
-    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive.stdout, check=True)
-    return Path(folder)
+    return git_archive(rev, folder, "pipeline", "rig", "calibration", who="photometric_speed")
 
 
 def psrig(code, *args):

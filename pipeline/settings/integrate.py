@@ -6,6 +6,7 @@ settings); ``psrig run`` spells the method ``--integrate-method``.
 
 from dataclasses import dataclass
 
+from ..core.memory import DEFAULT_SHARE
 from ..core.options import Options, option
 
 __all__ = ["IntegrateOptions", "MAX_SLOPE_DEG", "INTEGRATION_METHODS"]
@@ -35,4 +36,4 @@ class IntegrateOptions(Options):
                                   default_text=f"{MAX_SLOPE_DEG:g}")
     memory: str = option(None, "memory budget: bytes, 8G, 1500M or a share of the available memory such as 60%; a "
                                "session estimated to need more is refused before the solve", kind=str,
-                         metavar="SIZE", recorded=False, default_text="80% of the available memory")
+                         metavar="SIZE", recorded=False, default_text=f"{DEFAULT_SHARE:.0%} of the available memory")
