@@ -24,6 +24,7 @@ import numpy as np
 
 from ..core.jit import single_threaded
 from .anchor import highlight_mismatch
+from .flags import flag_columns
 from .lambert import normal_leverage
 from .methods import STATUS
 from .near_lights import PointLights, observations_at
@@ -146,7 +147,7 @@ def gatherer(flat_images, flat_valid, lights, offset=0, gains=None):
     ----------
     flat_images : ndarray (K, P)
         Observations, any float dtype (memory-mapped is fine: only ``idx`` is read).
-    flat_valid : ndarray (K, P) bool or None
+    flat_valid : ndarray (K, P) bool, PackedFlags (K, H, W) or None
     lights : ndarray (K, 3) or (K, H, W, 3), or PointLights
     offset : int
         Index in the whole image of ``flat_images``' first pixel (a tile's first row).
@@ -165,7 +166,7 @@ def gatherer(flat_images, flat_valid, lights, offset=0, gains=None):
         obs = flat_images[:, idx].T.astype(np.float64)
         if gains is not None:
             obs /= gains
-        obs_valid = None if flat_valid is None else flat_valid[:, idx].T
+        obs_valid = None if flat_valid is None else flag_columns(flat_valid, idx).T
         if flat_lights is not None:
             return obs, obs_valid, np.ascontiguousarray(flat_lights[:, idx + offset].transpose(1, 0, 2))
         obs, obs_lights = observations_at(lights, obs, idx + offset)

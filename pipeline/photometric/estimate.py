@@ -22,6 +22,7 @@ from ..core.jit import single_threaded
 from .anchor import anchor_scale, anchor_wanted, first_verdict
 from .consensus import consensus_record, refine_run
 from .engine import CHUNK_SIZE, KeptSelection, gatherer, prepare_context, run_chunks
+from .flags import PackedFlags
 from .frame_gains import FrameCheck, check_frames
 from .methods import STATUS, check_method_options, get_method, method_traits
 from .near_lights import PointLights
@@ -195,7 +196,7 @@ def _check_images(images, mask, valid):
     if not mask.any():
         raise InputError("the mask has no pixels")
     if valid is not None:
-        valid = np.asarray(valid, dtype=bool)
+        valid = valid if isinstance(valid, PackedFlags) else np.asarray(valid, dtype=bool)
         if valid.shape != images.shape:
             raise InputError(f"valid shape {valid.shape} does not match the images' {images.shape}")
     # One image at a time: images[:, mask] would copy the whole masked stack (peak memory).
@@ -291,8 +292,9 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     method : str
         A name in :data:`pipeline.photometric.METHODS` (which holds every registered
         reflectance model too).
-    valid : ndarray (K, H, W) bool, optional
-        False for observations that must not be used (saturated pixels).
+    valid : ndarray (K, H, W) bool or PackedFlags, optional
+        False for observations that must not be used (saturated pixels); a
+        :class:`pipeline.photometric.flags.PackedFlags` holds them in an eighth of the memory.
     chunk_size : int
         Pixels processed at once (memory per chunk is about chunk_size x K x 200 bytes).
     workers : int, optional
@@ -323,7 +325,8 @@ def estimate_normals(images, lights, mask=None, method="biquadratic", *, valid=N
     images, mask, valid = _check_images(images, mask, valid)
     plan = plan_solve(method, check_lights(lights, images.shape[0], images.shape[1:]), options)
     k = images.shape[0]
-    flat_images, flat_valid = images.reshape(k, -1), None if valid is None else valid.reshape(k, -1)
+    flat_images = images.reshape(k, -1)
+    flat_valid = valid if valid is None or isinstance(valid, PackedFlags) else valid.reshape(k, -1)
     pixels = np.flatnonzero(mask)
     plan = check_plan_frames(plan, gatherer(flat_images, flat_valid, plan.solver_lights), pixels)
     runs, probes, votes = [], [], []

@@ -32,6 +32,7 @@ from ..core.stage import Stage
 from ..core.yamlio import dump_yaml, plain
 from .anchor import scale_cone
 from .estimate import estimate_normals
+from .flags import PackedFlags
 from .methods import METHODS, STATUS, STATUS_NAMES, STATUS_PALETTE, check_method_options, method_traits
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
@@ -236,8 +237,10 @@ def channel_mean(pixels, out):
 
 
 def load_object_stack(session, frames, lights, channels=None, out=None, workers=None, stored=None):
-    """Grey linear stack (K, H, W) float32 with intensities divided out, and valid (K, H, W) bool;
-    ``channels`` (a :class:`ChannelSums`) gathers the colour sums on the way.
+    """Grey linear stack (K, H, W) float32 with intensities divided out, and valid (K, H, W): the
+    unsaturated observations, a :class:`pipeline.photometric.flags.PackedFlags` (bits: an eighth
+    of a bool stack) unless ``out`` gives the array to fill; ``channels`` (a :class:`ChannelSums`)
+    gathers the colour sums on the way.
 
     The frames are read by ``workers`` threads (default :func:`read_workers`), each straight into
     its slice of the stack: a frame's only full-size temporary is the file's pixels (H, W, C),
@@ -249,7 +252,7 @@ def load_object_stack(session, frames, lights, channels=None, out=None, workers=
     ----------
     out : (ndarray, ndarray), optional
         The stack (K, H, W) float32 and valid (K, H, W) bool to fill (e.g. memory-mapped
-        files); default new arrays.
+        files); default a new stack and packed flags.
     stored : callable, optional
         ``stored(index)`` once frame ``index`` is in ``out`` (a mapped file's writer gives the
         frame's pages back to the page cache there).
@@ -258,7 +261,7 @@ def load_object_stack(session, frames, lights, channels=None, out=None, workers=
     height, width, _ = image_size(first)
     shape = (len(frames), height, width)
     if out is None:
-        images, valid = np.empty(shape, np.float32), np.empty(shape, bool)
+        images, valid = np.empty(shape, np.float32), PackedFlags.filled(len(frames), (height, width))
     else:
         images, valid = out
         if images.shape != shape or valid.shape != shape:
@@ -269,7 +272,7 @@ def load_object_stack(session, frames, lights, channels=None, out=None, workers=
     def load(index):
         frame = frames[index]
         path = session.linear_path(frame)
-        scaled = None
+        scaled = saturated = None
         try:
             if state["failed"]:
                 return
@@ -284,7 +287,8 @@ def load_object_stack(session, frames, lights, channels=None, out=None, workers=
             scaled = to_float(pixels)
             np.divide(scaled, gain.astype(np.float32), out=scaled)
             channel_mean(scaled, images[index])
-            np.logical_not(read_mask(session.saturation_path(frame)), out=valid[index])
+            saturated = read_mask(session.saturation_path(frame))
+            valid[index] = ~saturated
             if stored is not None:
                 stored(index)
         except BaseException:
@@ -295,7 +299,7 @@ def load_object_stack(session, frames, lights, channels=None, out=None, workers=
             with turn:
                 turn.wait_for(lambda: state["next"] == index or state["failed"])
                 if channels is not None and not state["failed"]:
-                    channels.add(scaled, ~valid[index])
+                    channels.add(scaled, saturated)
                 state["next"] += 1
                 turn.notify_all()
 

@@ -144,8 +144,38 @@ def uncertainty_map(normals, status, residual, leverage, mask, lights, used=None
         return None, f"not estimated: {lights} light(s), at least {MIN_LIGHTS} are needed to measure the fit's noise"
     if leverage is None or not np.isfinite(leverage[mask]).any():
         return None, "not estimated: the method reports no conditioning of its observations"
-    has, features = uncertainty_features(normals, status, residual, leverage, mask, used)
-    return predict_uncertainty(features, has), None
+    out = np.full(mask.shape, np.nan, np.float32)
+    for band, inner, window in _bands(mask):
+        terms = [None if a is None else a[band] for a in (normals, status, residual, leverage, mask, used)]
+        has, features = uncertainty_features(*terms)
+        out[window] = predict_uncertainty(features, has)[inner]
+    return out, None
+
+
+#: rows of the map made at once: its float64 terms are about 150 bytes a pixel, which in one
+#: piece came on top of the stack at the normals stage's peak
+BAND_ROWS = 256
+#: rows and columns of context around a band: the 7 x 7 mean of the 5 x 5 neighbour angle needs
+#: 5, the outline term the distance to the mask's edge up to OUTLINE_PX + 1
+HALO = 6
+
+
+def _bands(mask):
+    """(band, inner, window) slices covering the mask's bounding box in BAND_ROWS rows: ``band``
+    with HALO rows and columns of context (within the image), ``inner`` the band's own pixels
+    within it, ``window`` where they go in the image. Every term at a band's own pixels is the
+    whole image's (a nearer edge of the mask than HALO is inside the band; uniform filters differ
+    at most in rounding)."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        return
+    height, width = mask.shape
+    c0, c1 = max(cols[0] - HALO, 0), min(cols[-1] + 1 + HALO, width)
+    for r0 in range(rows[0], rows[-1] + 1, BAND_ROWS):
+        r1 = min(r0 + BAND_ROWS, rows[-1] + 1)
+        b0, b1 = max(r0 - HALO, 0), min(r1 + HALO, height)
+        yield ((slice(b0, b1), slice(c0, c1)), (slice(r0 - b0, r1 - b0), slice(None)),
+               (slice(r0, r1), slice(c0, c1)))
 
 
 def uncertainty_summary(uncertainty, mask, threshold=UNCERTAIN_DEG):

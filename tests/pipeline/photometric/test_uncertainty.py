@@ -147,3 +147,24 @@ def test_many_uncertain_pixels_are_warned_of():
     warnings = normals_warnings({"ok": 85, "uncertain": 15}, 10, {})
     assert len(warnings) == 1 and warnings[0].startswith("15.0% of pixels are uncertain")
     assert normals_warnings({"ok": 95, "uncertain": 5}, 10, {}) == []
+
+
+def test_the_map_made_in_bands_is_the_whole_image_map(monkeypatch):
+    from pipeline.photometric import uncertainty as module
+
+    rng = np.random.default_rng(4)
+    yy, xx = np.mgrid[:90, :120]
+    # a disc and a strip along the top edge: bands cut both, the strip's outline is the border's
+    mask = ((yy - 45) ** 2 + (xx - 50) ** 2 < 38 ** 2) | ((yy < 5) & (xx > 100))
+    normals = rng.normal(size=(90, 120, 3))
+    normals[..., 2] = np.abs(normals[..., 2]) + 1
+    normals = np.where(mask[..., None], normals / np.linalg.norm(normals, axis=-1, keepdims=True), 0.0)
+    residual, leverage = rng.random((90, 120)) * 0.1, rng.random((90, 120)) + 0.5
+    used, status = rng.integers(5, 96, (90, 120)), np.ones((90, 120), np.uint8)
+    has, features = module.uncertainty_features(normals, status, residual, leverage, mask, used)
+    whole = module.predict_uncertainty(features, has)
+    for rows in (7, 16, 1000):
+        monkeypatch.setattr(module, "BAND_ROWS", rows)
+        banded, _ = module.uncertainty_map(normals, status, residual, leverage, mask, 96, used)
+        np.testing.assert_allclose(banded, whole, rtol=1e-6)
+        assert np.array_equal(np.isnan(banded), np.isnan(whole))
