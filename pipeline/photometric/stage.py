@@ -21,8 +21,7 @@ import numpy as np
 
 from ..core.errors import StageError
 from ..core.atomic import atomic_write_text
-from ..core.imageio import (image_size, read_image_native, read_mask, read_workers, to_float, write_image, write_mask,
-                       write_normal_png)
+from ..core.imageio import image_size, read_mask, read_workers, write_image, write_mask, write_normal_png
 from ..core.memory import BASE_BYTES, budget_bytes, check_budget, format_gb
 from ..core.lightsio import read_exclude, read_lights_yaml
 from ..core.paths import EXCLUDE, LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, PREDICTION, PREDICTION_IMAGES, UNCERTAINTY
@@ -33,6 +32,7 @@ from ..core.yamlio import dump_yaml, plain
 from .anchor import scale_cone
 from .estimate import estimate_normals
 from .flags import PackedFlags
+from .frame_read import read_frame, scale_into
 from .methods import METHODS, STATUS, STATUS_NAMES, STATUS_PALETTE, check_method_options, method_traits
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
@@ -215,25 +215,12 @@ class ChannelSums:
 
     def add(self, scaled, saturated):
         """Add one frame (H, W, C) with its intensities divided out; its ``saturated`` (H, W)
-        pixels are zeroed in place (the frame is the caller's no longer)."""
-        if scaled.shape[2] < 2:
+        pixels are zeroed in place (the frame is the caller's no longer). None: a grey frame."""
+        if scaled is None or scaled.shape[2] < 2:
             self.grey = True
             return
         scaled[saturated] = 0.0
         self.sums = scaled if self.sums is None else np.add(self.sums, scaled, out=self.sums)
-
-
-def channel_mean(pixels, out):
-    """``np.mean(pixels, axis=2, out=out)`` for pixels (H, W, C) float32, to the bit, without
-    numpy's reduction over a short last axis (an order of magnitude slower than adding the
-    channel planes): below 8 channels numpy adds them one after another, as here."""
-    count = pixels.shape[2]
-    if count >= 8:
-        return np.mean(pixels, axis=2, out=out)
-    np.copyto(out, pixels[:, :, 0])
-    for channel in range(1, count):
-        np.add(out, pixels[:, :, channel], out=out)
-    return np.divide(out, np.float32(count), out=out)
 
 
 def load_object_stack(session, frames, lights, channels=None, out=None, workers=None, stored=None):
@@ -276,17 +263,16 @@ def load_object_stack(session, frames, lights, channels=None, out=None, workers=
         try:
             if state["failed"]:
                 return
-            pixels = read_image_native(path)
-            if pixels.shape[:2] != (height, width):
-                raise StageError(f"{path}: size {pixels.shape[:2]} differs from {first}'s {(height, width)}")
+            pixels = read_frame(path)
+            size, colours = pixels.shape[:2], pixels.shape[2]
+            if size != (height, width):
+                raise StageError(f"{path}: size {size} differs from {first}'s {(height, width)}")
             gain = lights.intensities[frame["light"]]
-            gain = gain if gain.size == pixels.shape[2] else np.full(pixels.shape[2], gain.mean())
+            gain = gain if gain.size == colours else np.full(colours, gain.mean())
             if (gain <= 0).any():
                 raise StageError(f"{session.path(LIGHTS)}: light {frame['light']} has a non-positive intensity")
-            # the same float32 arithmetic as read_image then ``linear / gain``, in the file's buffer
-            scaled = to_float(pixels)
-            np.divide(scaled, gain.astype(np.float32), out=scaled)
-            channel_mean(scaled, images[index])
+            # the same float32 arithmetic as read_image then ``linear / gain`` and the channel mean
+            scaled = scale_into(pixels, gain, images[index], colour=channels is not None and colours > 1)
             saturated = read_mask(session.saturation_path(frame))
             valid[index] = ~saturated
             if stored is not None:
