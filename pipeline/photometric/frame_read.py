@@ -69,34 +69,42 @@ def channel_mean(pixels, out):
     return np.divide(out, np.float32(count), out=out)
 
 
-def _scale_mean_kernel(planes, order, gain, out, scaled, colour):
-    # row by row and channel by channel, so that every inner loop runs over contiguous values
-    # (vectorised); the sum is ((c0 + c1) + c2) / C in float32, as numpy's channel mean
-    height, _, width = planes.shape
+def _scale_mean_kernel(values, step, order, gain, out, scaled, colour):
+    # channel by channel over contiguous rows, so that every inner loop vectorises; the sum is
+    # ((c0 + c1) + c2) / C in float32, as numpy's channel mean
+    height, width = out.shape
     count = len(order)
     divisor = np.float32(count)
     for y in range(height):
-        total = out[y]
         for c in range(count):
-            source, factor = planes[y, order[c]], gain[c]
-            target = scaled[y, c] if colour else total
+            base, factor = y * step + order[c] * width, gain[c]
             for x in range(width):
-                value = source[x] / factor
+                value = values[base + x] / factor
                 if colour:
-                    target[x] = value
+                    scaled[y, c, x] = value
                 if c == 0:
-                    total[x] = value
+                    out[y, x] = value
                 else:
-                    total[x] += value
+                    out[y, x] += value
         for x in range(width):
-            total[x] = total[x] / divisor
+            out[y, x] = out[y, x] / divisor
 
 
 def _build():
     kernel = njit(_scale_mean_kernel)
-    kernel(np.ones((2, 3, 2), np.float32), np.array([2, 1, 0], np.intp), np.ones(3, np.float32),
-           np.empty((2, 2), np.float32), np.empty((2, 2, 3), np.float32), True)
+    kernel(np.ones(12, np.float32), 6, np.array([2, 1, 0], np.intp), np.ones(3, np.float32),
+           np.empty((2, 2), np.float32), np.empty((2, 3, 2), np.float32), True)
     return kernel
+
+
+def _rows(planes):
+    """Planes (H, C, W) float32 whose rows are contiguous as one flat array over all of them
+    (the gaps between rows included) and its step between rows, in values."""
+    height, count, width = planes.shape
+    if planes.strides[1:] != (width * 4, 4) or planes.strides[0] % 4:
+        planes = np.ascontiguousarray(planes)
+    step = planes.strides[0] // 4
+    return np.lib.stride_tricks.as_strided(planes, ((height - 1) * step + count * width,), (4,)), step
 
 
 SCALE_KERNEL = Compiled("frame reading kernel", _build)
@@ -124,5 +132,6 @@ def scale_into(frame, gain, out, colour=True):
     height, width, count = frame.shape
     scaled = np.empty((height, count, width) if colour else (0, count, 0), np.float32)
     # half floats widen exactly (numba's kernels take no float16)
-    kernel(frame.data.astype(np.float32, copy=False), frame.order, gain, np.asarray(out), scaled, colour)
+    values, step = _rows(frame.data.astype(np.float32, copy=False))
+    kernel(values, step, frame.order, gain, np.asarray(out), scaled, colour)
     return np.moveaxis(scaled, 1, 2) if colour else None
