@@ -13,7 +13,32 @@ import mmap
 
 import numpy as np
 
-__all__ = ["MappedNpy", "FrameByFrame", "create_npy"]
+__all__ = ["MappedNpy", "FrameByFrame", "create_npy", "anonymous_array", "release_tail"]
+
+
+def anonymous_array(shape, dtype):
+    """A new array (uninitialised; zeros until written) in an anonymous private mapping of its
+    own, so that :func:`release_tail` can give the memory of its unused end back."""
+    size = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+    flags = getattr(mmap, "MAP_PRIVATE", 0) | getattr(mmap, "MAP_ANONYMOUS", 0)
+    buffer = mmap.mmap(-1, max(size, 1), flags=flags) if flags else mmap.mmap(-1, max(size, 1))
+    return np.ndarray(tuple(shape), dtype, buffer=buffer)
+
+
+def release_tail(array, keep):
+    """Give the memory of ``array``'s mapping beyond its first ``keep`` bytes back to the system
+    (an :func:`anonymous_array` or a view of one; the pages read as zeros afterwards). Returns
+    the bytes given back (0 where the platform cannot)."""
+    buffer = array
+    while buffer is not None and not isinstance(buffer, mmap.mmap):
+        buffer = getattr(buffer, "base", None) if isinstance(buffer, np.ndarray) else getattr(buffer, "obj", None)
+    if buffer is None or not hasattr(mmap, "MADV_DONTNEED"):
+        return 0
+    start = -(-int(keep) // mmap.PAGESIZE) * mmap.PAGESIZE
+    if start >= len(buffer):
+        return 0
+    buffer.madvise(mmap.MADV_DONTNEED, start, len(buffer) - start)
+    return len(buffer) - start
 
 
 def create_npy(path, shape, dtype):

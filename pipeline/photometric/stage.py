@@ -22,6 +22,7 @@ import numpy as np
 from ..core.errors import StageError
 from ..core.atomic import atomic_write_text
 from ..core.imageio import image_size, read_mask, read_workers, write_image, write_mask, write_normal_png
+from ..core.mapped import anonymous_array
 from ..core.memory import BASE_BYTES, budget_bytes, check_budget, format_gb
 from ..core.lightsio import read_exclude, read_lights_yaml
 from ..core.paths import EXCLUDE, LIGHTS, LIT_OBSERVATIONS, OBSERVATIONS, PREDICTION, PREDICTION_IMAGES, UNCERTAINTY
@@ -33,6 +34,7 @@ from .anchor import scale_cone
 from .estimate import estimate_normals
 from .flags import PackedFlags
 from .frame_read import read_frame, scale_into
+from .object_box import crop_stack, object_box, uncrop_result
 from .methods import METHODS, STATUS, STATUS_NAMES, STATUS_PALETTE, check_method_options, method_traits
 from .near_depth import PASSES, refine_near_depth
 from .near_lights import PointLights
@@ -248,7 +250,7 @@ def load_object_stack(session, frames, lights, channels=None, out=None, workers=
     height, width, _ = image_size(first)
     shape = (len(frames), height, width)
     if out is None:
-        images, valid = np.empty(shape, np.float32), PackedFlags.filled(len(frames), (height, width))
+        images, valid = anonymous_array(shape, np.float32), PackedFlags.filled(len(frames), (height, width))
     else:
         images, valid = out
         if images.shape != shape or valid.shape != shape:
@@ -458,6 +460,12 @@ def normals_session(session, *, force=False, show_progress=True, tiled=None, **o
     channels = ChannelSums()
     images, valid = load_object_stack(session, run.frames, run.lights, channels)
     mask = object_mask(session, run, images.shape[1:], lambda: images.max(axis=0))
+    # near lights depend on where each pixel is in the frame: those solve the whole frame
+    box = object_box(mask) if run.model != "near" else None
+    whole_mask = mask
+    if box is not None:
+        images, valid = crop_stack(images, valid, box)
+        mask = mask[box]
     lap("read")
     passes = PASSES if run.model == "near" and near_depth else 0
     solved_with = {}
@@ -486,6 +494,8 @@ def normals_session(session, *, force=False, show_progress=True, tiled=None, **o
     lap("prediction")
     # the stack is done with: the files' buffers are not to come on top of it
     del images, valid, lights
+    if box is not None:
+        result = uncrop_result(result, box, whole_mask)
     return record_normals(session, run, result, channels, near_depth=depth, registration=registration,
                           prediction=prediction, timings=timings, memory=plan)
 
