@@ -22,6 +22,10 @@ def anonymous_array(shape, dtype):
     size = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
     flags = getattr(mmap, "MAP_PRIVATE", 0) | getattr(mmap, "MAP_ANONYMOUS", 0)
     buffer = mmap.mmap(-1, max(size, 1), flags=flags) if flags else mmap.mmap(-1, max(size, 1))
+    if hasattr(mmap, "MADV_HUGEPAGE"):
+        # as numpy asks for its own large arrays: a 1.5 GB stack first written in 4 KB pages
+        # spent about 3 s of CPU in page faults
+        buffer.madvise(mmap.MADV_HUGEPAGE)
     return np.ndarray(tuple(shape), dtype, buffer=buffer)
 
 

@@ -110,9 +110,11 @@ def _rows(planes):
 SCALE_KERNEL = Compiled("frame reading kernel", _build)
 
 
-def scale_into(frame, gain, out, colour=True):
+def scale_into(frame, gain, out, colour=True, planes=None):
     """Divide ``frame`` (:class:`FramePixels`) by ``gain`` (C,) float32 and write the mean over
-    its channels into ``out`` (H, W) float32.
+    its channels into ``out`` (H, W) float32; ``planes`` (H, C, W) float32, optional, receives
+    the divided colours on the compiled path (a reading thread's buffer, reused frame after
+    frame).
 
     Returns
     -------
@@ -130,7 +132,8 @@ def scale_into(frame, gain, out, colour=True):
         channel_mean(scaled, out)
         return scaled if colour else None
     height, width, count = frame.shape
-    scaled = np.empty((height, count, width) if colour else (0, count, 0), np.float32)
+    scaled = planes if colour and planes is not None and planes.shape == (height, count, width) else \
+        np.empty((height, count, width) if colour else (0, count, 0), np.float32)
     # half floats widen exactly (numba's kernels take no float16)
     values, step = _rows(frame.data.astype(np.float32, copy=False))
     kernel(values, step, frame.order, gain, np.asarray(out), scaled, colour)

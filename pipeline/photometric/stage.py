@@ -222,7 +222,10 @@ class ChannelSums:
             self.grey = True
             return
         scaled[saturated] = 0.0
-        self.sums = scaled if self.sums is None else np.add(self.sums, scaled, out=self.sums)
+        if self.sums is None:
+            self.sums = np.array(scaled)   # the reader reuses its buffer
+        else:
+            np.add(self.sums, scaled, out=self.sums)
 
 
 def load_object_stack(session, frames, lights, channels=None, out=None, workers=None, stored=None):
@@ -257,6 +260,8 @@ def load_object_stack(session, frames, lights, channels=None, out=None, workers=
             raise StageError(f"normals: the stack to fill is {images.shape}, the frames {shape}")
     turn = threading.Condition()
     state = {"next": 0, "failed": False}
+    # each thread's colour planes, free again once its frame's colours are added (in ``load``)
+    buffers = threading.local()
 
     def load(index):
         frame = frames[index]
@@ -274,7 +279,10 @@ def load_object_stack(session, frames, lights, channels=None, out=None, workers=
             if (gain <= 0).any():
                 raise StageError(f"{session.path(LIGHTS)}: light {frame['light']} has a non-positive intensity")
             # the same float32 arithmetic as read_image then ``linear / gain`` and the channel mean
-            scaled = scale_into(pixels, gain, images[index], colour=channels is not None and colours > 1)
+            colour = channels is not None and colours > 1
+            if colour and getattr(buffers, "planes", np.empty(0)).shape != (height, colours, width):
+                buffers.planes = np.empty((height, colours, width), np.float32)
+            scaled = scale_into(pixels, gain, images[index], colour, buffers.planes if colour else None)
             saturated = read_mask(session.saturation_path(frame))
             valid[index] = ~saturated
             if stored is not None:
