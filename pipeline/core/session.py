@@ -34,6 +34,7 @@ from . import lock as _lock
 from .atomic import atomic_write_bytes, atomic_write_text, sweep_tree
 from .brackets import FRAME_ID, check_brackets, stage_view
 from .errors import ManifestError, SessionError
+from .hashes import HashCache
 from .paths import SCRATCH, linear_frame, saturation_frame
 from .yamlio import dump_yaml, load_yaml, plain
 
@@ -94,6 +95,8 @@ class Session:
         self.lock = None
         #: {folder: (files, bytes)} of the stale temporaries removed when the lock was taken
         self.swept = {}
+        #: the files' digests, remembered against their size, times and inode (.psrig.hashes)
+        self.hashes = HashCache(self.root)
 
     # ------------------------------------------------------------------ opening and saving
     @classmethod
@@ -455,12 +458,20 @@ class Session:
             if not path.is_file():
                 raise SessionError(f"{path}: input file is missing")
             paths.append(path)
+        cache = self.hashes
+
+        def digest(rel, path):
+            return cache.digest(rel, path, file_sha256)
+
         if len(paths) < 4:
-            return {rel: file_sha256(path) for rel, path in zip(rels, paths)}
-        # hashlib releases the GIL on large blocks: a stage of a hundred frames hashes them on
-        # every core; map keeps the order of ``rels``
-        with ThreadPoolExecutor(min(8, os.cpu_count() or 1), thread_name_prefix="psrig-hash") as pool:
-            return dict(zip(rels, pool.map(file_sha256, paths)))
+            found = {rel: digest(rel, path) for rel, path in zip(rels, paths)}
+        else:
+            # hashlib releases the GIL on large blocks: a stage of a hundred frames hashes them
+            # on every core; map keeps the order of ``rels``
+            with ThreadPoolExecutor(min(8, os.cpu_count() or 1), thread_name_prefix="psrig-hash") as pool:
+                found = dict(zip(rels, pool.map(digest, rels, paths)))
+        cache.save()
+        return found
 
     def manifest_input(self, label, frames, keys):
         """A stage input {``session.yaml#<label>``: sha256} covering manifest fields the stage reads.
@@ -486,8 +497,10 @@ class Session:
             return False
         for rel, digest in (record.get("outputs") or {}).items():
             path = self.root / rel
-            if not path.is_file() or file_sha256(path) != digest:
+            if not path.is_file() or self.hashes.digest(rel, path, file_sha256) != digest:
+                self.hashes.save()
                 return False
+        self.hashes.save()
         return True
 
     def record_stage(self, name, params, inputs, outputs, *, status="ok", seconds=None, save=True, **extra):
@@ -574,7 +587,9 @@ def _validate_subtracted(subtracted, where):
 def _output_hashes(session, outputs):
     if isinstance(outputs, dict):
         return {check_relative(rel, "outputs"): digest for rel, digest in outputs.items()}
-    return {rel: file_sha256(session.path(rel)) for rel in outputs}
+    found = {rel: session.hashes.digest(rel, session.path(rel), file_sha256) for rel in outputs}
+    session.hashes.save()
+    return found
 
 
 def _frame_id(frame):

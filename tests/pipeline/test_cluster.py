@@ -30,7 +30,7 @@ from tests.pipeline.tiny_session import sphere  # noqa: E402
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
 
 LIGHTS = 16
-SKIP = ("session.yaml",)
+SKIP = ("session.yaml", ".psrig.hashes")
 
 
 def ring_lights(count):
