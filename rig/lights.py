@@ -385,8 +385,26 @@ class SerialLightController(LightController):
             self.close()
             raise LightConnectionError(f"{what}: the light controller disconnected ({exc})") from None
         if not raw.endswith(b"\n"):
-            return _TOO_LONG if len(raw) > MAX_REPLY else None
+            if len(raw) <= MAX_REPLY:
+                return None
+            self._discard_line(what)
+            return _TOO_LONG
         return raw.decode("ascii", errors="replace").strip()
+
+    def _discard_line(self, what):
+        """Read and drop the rest of an over-long reply, up to its line end or the timeout: a
+        device still sending it would otherwise answer the next command with its tail."""
+        deadline = time.monotonic() + (self.timeout or 0)
+        try:
+            while time.monotonic() < deadline:
+                chunk = self._serial.read_until(b"\n", 1 << 16)
+                if not chunk or chunk.endswith(b"\n"):   # the line's end, or the device fell quiet
+                    return
+        except serial.SerialTimeoutException:
+            return
+        except (serial.SerialException, OSError) as exc:
+            self.close()
+            raise LightConnectionError(f"{what}: the light controller disconnected ({exc})") from None
 
     def _judge_reply(self, line, what, light, expected):
         """Raise for a definite ``ERR``; describe a retryable bad reply."""
