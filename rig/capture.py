@@ -402,6 +402,7 @@ def _reconcile(session, rig_config, plan, echo):
         except SessionError as exc:
             raise CaptureError(f"{exc}. psrig never captures over a frame: restore the file, or "
                                "capture into a new session", frame["id"], frame.get("light")) from None
+    session.hashes.save()
     _adopt_orphans(session, plan_frames(rig_config, sphere=True), echo)
     done = {f["id"] for f in session.frames()}
     todo = [shot for shot in plan if shot.frame_id not in done]

@@ -435,11 +435,13 @@ class Session:
         return f"{kind}_{n:03d}"
 
     def verify_frame(self, frame):
-        """Raise :class:`SessionError` if the frame's file is missing or its sha256 changed."""
+        """Raise :class:`SessionError` if the frame's file is missing or its sha256 changed
+        (a file unchanged since it was last hashed is not read again: :attr:`hashes`; the caller
+        saves them)."""
         path = self.path(frame["file"])
         if not path.is_file():
             raise SessionError(f"{path}: raw file of frame {frame['id']!r} is missing")
-        digest = file_sha256(path)
+        digest = self.hashes.digest(frame["file"], path, file_sha256)
         if digest != frame["sha256"]:
             raise SessionError(f"{path}: frame {frame['id']!r} does not match its sha256 in the manifest "
                                "(the file changed after capture)")

@@ -71,6 +71,7 @@ def _verify(session, frames):
             failed[frame["id"]] = f"{frame['file']}: raw file of frame {frame['id']!r} is missing"
             continue
         inputs[frame["file"]] = session.verify_frame(frame)
+    session.hashes.save()
     return inputs, failed
 
 

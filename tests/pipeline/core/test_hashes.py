@@ -93,3 +93,23 @@ def test_an_up_to_date_stage_reads_no_frame_again(tmp_path, settled, monkeypatch
     frame.write_bytes(frame.read_bytes())   # rewritten, the same bytes: hashed again, still current
     assert normals_session(again, method="lambert", show_progress=False) is None
     assert hasher.paths == [frame.name]
+
+
+def test_a_capture_changed_behind_the_cache_still_stops_decode(tmp_path, settled):
+    from pipeline.core.errors import SessionError
+    from pipeline.core.session import Session
+    from pipeline.decode import decode_session
+    from tests.pipeline.tiny_session import make_session
+
+    session = make_session(tmp_path)
+    decode_session(session)   # every capture hashed and remembered
+    frame = session.manifest["frames"][0]
+    raw = session.path(frame["file"])
+    stat = os.stat(raw)
+    data = bytearray(raw.read_bytes())
+    data[-1] ^= 1
+    time.sleep(0.05)
+    raw.write_bytes(bytes(data))   # same size, the modification time put back
+    os.utime(raw, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    with pytest.raises(SessionError, match="does not match its sha256"):
+        decode_session(Session.open(session.root), force=True)
