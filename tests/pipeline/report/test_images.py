@@ -18,6 +18,16 @@ def test_shrink_averages_blocks_and_ignores_nan_only_where_there_is_nan():
     assert np.isnan(with_nan[2, 3]).all() and np.isfinite(with_nan[:2]).all()
 
 
+def test_shrink_is_the_block_mean_for_any_channel_count_and_a_ragged_edge():
+    rng = np.random.default_rng(3)
+    for colours in (1, 3, 4, 5):
+        image = rng.random((103, 157, colours), dtype=np.float32)   # 10 x 15 blocks of 10 px, 3 and 7 left over
+        small = shrink(image, 16)
+        blocks = image[:100, :150].reshape(10, 10, 15, 10, colours).astype(np.float64).mean(axis=(1, 3))
+        assert small.shape == (10, 15, colours) and small.dtype == np.float32
+        np.testing.assert_allclose(small, blocks, rtol=1e-5)
+
+
 def test_status_legend_counts_every_code_but_background():
     codes = np.array([[0, 1, 1, 4], [1, 7, 0, 0]])
     colours = np.zeros((256, 3), np.uint8)
