@@ -379,32 +379,25 @@ class SerialLightController(LightController):
             # read_until bounds both the length and the total time (pyserial's readline would
             # wait for a line end forever while bytes keep coming, its timeout being per read)
             raw = self._serial.read_until(b"\n", MAX_REPLY + 1)
+            if len(raw) > MAX_REPLY and not raw.endswith(b"\n"):
+                self._discard_line()
         except serial.SerialTimeoutException:
             return None
         except (serial.SerialException, OSError) as exc:
             self.close()
             raise LightConnectionError(f"{what}: the light controller disconnected ({exc})") from None
         if not raw.endswith(b"\n"):
-            if len(raw) <= MAX_REPLY:
-                return None
-            self._discard_line(what)
-            return _TOO_LONG
+            return _TOO_LONG if len(raw) > MAX_REPLY else None
         return raw.decode("ascii", errors="replace").strip()
 
-    def _discard_line(self, what):
+    def _discard_line(self):
         """Read and drop the rest of an over-long reply, up to its line end or the timeout: a
         device still sending it would otherwise answer the next command with its tail."""
         deadline = time.monotonic() + (self.timeout or 0)
-        try:
-            while time.monotonic() < deadline:
-                chunk = self._serial.read_until(b"\n", 1 << 16)
-                if not chunk or chunk.endswith(b"\n"):   # the line's end, or the device fell quiet
-                    return
-        except serial.SerialTimeoutException:
-            return
-        except (serial.SerialException, OSError) as exc:
-            self.close()
-            raise LightConnectionError(f"{what}: the light controller disconnected ({exc})") from None
+        while time.monotonic() < deadline:
+            chunk = self._serial.read_until(b"\n", 1 << 16)
+            if not chunk or chunk.endswith(b"\n"):   # the line's end, or the device fell quiet
+                return
 
     def _judge_reply(self, line, what, light, expected):
         """Raise for a definite ``ERR``; describe a retryable bad reply."""

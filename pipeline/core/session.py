@@ -441,7 +441,7 @@ class Session:
         path = self.path(frame["file"])
         if not path.is_file():
             raise SessionError(f"{path}: raw file of frame {frame['id']!r} is missing")
-        digest = self.hashes.digest(frame["file"], path, file_sha256)
+        digest = self._sha256(frame["file"], path)
         if digest != frame["sha256"]:
             raise SessionError(f"{path}: frame {frame['id']!r} does not match its sha256 in the manifest "
                                "(the file changed after capture)")
@@ -460,20 +460,19 @@ class Session:
             if not path.is_file():
                 raise SessionError(f"{path}: input file is missing")
             paths.append(path)
-        cache = self.hashes
-
-        def digest(rel, path):
-            return cache.digest(rel, path, file_sha256)
-
         if len(paths) < 4:
-            found = {rel: digest(rel, path) for rel, path in zip(rels, paths)}
+            found = {rel: self._sha256(rel, path) for rel, path in zip(rels, paths)}
         else:
             # hashlib releases the GIL on large blocks: a stage of a hundred frames hashes them
             # on every core; map keeps the order of ``rels``
             with ThreadPoolExecutor(min(8, os.cpu_count() or 1), thread_name_prefix="psrig-hash") as pool:
-                found = dict(zip(rels, pool.map(digest, rels, paths)))
-        cache.save()
+                found = dict(zip(rels, pool.map(self._sha256, rels, paths)))
+        self.hashes.save()
         return found
+
+    def _sha256(self, rel, path):
+        """The sha256 of ``path`` (session-relative ``rel``), remembered in :attr:`hashes`."""
+        return self.hashes.digest(rel, path, file_sha256)
 
     def manifest_input(self, label, frames, keys):
         """A stage input {``session.yaml#<label>``: sha256} covering manifest fields the stage reads.
@@ -497,13 +496,10 @@ class Session:
             return False
         if record.get("params") != plain(params) or record.get("inputs") != inputs:
             return False
-        for rel, digest in (record.get("outputs") or {}).items():
-            path = self.root / rel
-            if not path.is_file() or self.hashes.digest(rel, path, file_sha256) != digest:
-                self.hashes.save()
-                return False
+        current = all((self.root / rel).is_file() and self._sha256(rel, self.root / rel) == digest
+                      for rel, digest in (record.get("outputs") or {}).items())
         self.hashes.save()
-        return True
+        return current
 
     def record_stage(self, name, params, inputs, outputs, *, status="ok", seconds=None, save=True, **extra):
         """Record that stage ``name`` ran.
@@ -589,7 +585,7 @@ def _validate_subtracted(subtracted, where):
 def _output_hashes(session, outputs):
     if isinstance(outputs, dict):
         return {check_relative(rel, "outputs"): digest for rel, digest in outputs.items()}
-    found = {rel: session.hashes.digest(rel, session.path(rel), file_sha256) for rel in outputs}
+    found = {rel: session._sha256(rel, session.path(rel)) for rel in outputs}
     session.hashes.save()
     return found
 

@@ -7,8 +7,13 @@ import time
 import pytest
 
 from pipeline.core import hashes as module
+from pipeline.core import session as session_module
+from pipeline.core.errors import SessionError
 from pipeline.core.hashes import HASHES_FILE, HashCache
-from pipeline.core.session import file_sha256
+from pipeline.core.session import Session, file_sha256
+from pipeline.decode import decode_session
+from pipeline.photometric import normals_session
+from tests.pipeline.tiny_session import make_session
 
 
 class Counting:
@@ -75,17 +80,12 @@ def test_a_damaged_or_unwritable_cache_is_ignored(tmp_path, settled):
 
 
 def test_an_up_to_date_stage_reads_no_frame_again(tmp_path, settled, monkeypatch):
-    from pipeline.core import session as session_module
-    from pipeline.photometric import normals_session
-    from tests.pipeline.tiny_session import make_session
-
     session = make_session(tmp_path)
-    from pipeline.decode import decode_session
     decode_session(session)
     assert normals_session(session, method="lambert", show_progress=False) is not None
     hasher = Counting()
     monkeypatch.setattr(session_module, "file_sha256", hasher)
-    again = session_module.Session.open(session.root)
+    again = Session.open(session.root)
     assert normals_session(again, method="lambert", show_progress=False) is None   # up to date
     assert hasher.paths == []
     frame = again.linear_path(again.manifest["frames"][0])
@@ -96,11 +96,6 @@ def test_an_up_to_date_stage_reads_no_frame_again(tmp_path, settled, monkeypatch
 
 
 def test_a_capture_changed_behind_the_cache_still_stops_decode(tmp_path, settled):
-    from pipeline.core.errors import SessionError
-    from pipeline.core.session import Session
-    from pipeline.decode import decode_session
-    from tests.pipeline.tiny_session import make_session
-
     session = make_session(tmp_path)
     decode_session(session)   # every capture hashed and remembered
     frame = session.manifest["frames"][0]
